@@ -1,0 +1,142 @@
+"""Pinhole camera shared by data loaders, experts, the rasterizer and the routers.
+
+Conventions (OpenCV / COLMAP): camera x right, y down, z forward; ``world_to_camera`` maps world
+points to camera coordinates; pixel (x, y) has its centre at (x + 0.5, y + 0.5) in the image
+coordinates produced by ``K``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import torch
+from torch import Tensor
+
+
+@dataclass(frozen=True)
+class Camera:
+    """One view at one time.
+
+    Attributes:
+        K: intrinsics ``[3, 3]``.
+        world_to_camera: extrinsics ``[4, 4]`` (OpenCV convention).
+        width, height: image size in pixels.
+        time: normalised time in [0, 1] used by the experts (dataset-specific convention).
+        near, far: clipping distances along the optical axis.
+        camera_id: index of the physical camera (per-camera embeddings, e.g. E-D3DGS).
+        frame: integer frame index within the scene (``-1`` if not applicable).
+        name: identifier used in logs and outputs (e.g. ``cam00/0012``).
+    """
+
+    K: Tensor
+    world_to_camera: Tensor
+    width: int
+    height: int
+    time: float = 0.0
+    near: float = 0.01
+    far: float = 1000.0
+    camera_id: int = 0
+    frame: int = -1
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        if tuple(self.K.shape) != (3, 3):
+            raise ValueError(f"Camera.K must have shape [3, 3], got {list(self.K.shape)}")
+        if tuple(self.world_to_camera.shape) != (4, 4):
+            raise ValueError(
+                f"Camera.world_to_camera must have shape [4, 4], got {list(self.world_to_camera.shape)}"
+            )
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"Camera size must be positive, got {self.width}x{self.height}")
+        if not (0.0 < self.near < self.far):
+            raise ValueError(f"Camera needs 0 < near < far, got near={self.near}, far={self.far}")
+        if not torch.isfinite(self.K).all() or not torch.isfinite(self.world_to_camera).all():
+            raise ValueError(f"Camera {self.name!r} has non-finite intrinsics or extrinsics")
+
+    # -- derived quantities -------------------------------------------------------------------
+    @property
+    def device(self) -> torch.device:
+        return self.K.device
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+    @property
+    def camera_to_world(self) -> Tensor:
+        """``[4, 4]`` inverse of ``world_to_camera``."""
+        return torch.linalg.inv(self.world_to_camera)
+
+    @property
+    def center(self) -> Tensor:
+        """Camera centre in world coordinates, ``[3]``."""
+        R, t = self.world_to_camera[:3, :3], self.world_to_camera[:3, 3]
+        return -R.T @ t
+
+    def rays(self) -> tuple[Tensor, Tensor]:
+        """Per-pixel rays through pixel centres.
+
+        Returns:
+            origins ``[H, W, 3]`` (the camera centre) and unit directions ``[H, W, 3]`` in world space.
+        """
+        dtype, device = self.K.dtype, self.K.device
+        ys, xs = torch.meshgrid(
+            torch.arange(self.height, dtype=dtype, device=device) + 0.5,
+            torch.arange(self.width, dtype=dtype, device=device) + 0.5,
+            indexing="ij",
+        )
+        pix = torch.stack([xs, ys, torch.ones_like(xs)], dim=-1)  # [H, W, 3]
+        dirs_cam = pix @ torch.linalg.inv(self.K).T
+        R = self.world_to_camera[:3, :3]
+        dirs = torch.nn.functional.normalize(dirs_cam @ R, dim=-1)  # R^T d, row-vector form
+        origins = self.center.expand_as(dirs)
+        return origins, dirs
+
+    # -- transforms ---------------------------------------------------------------------------
+    def scaled(self, factor: float) -> Camera:
+        """The same camera with the image resized by ``factor`` (e.g. 0.5 for half resolution)."""
+        if factor <= 0:
+            raise ValueError(f"scale factor must be positive, got {factor}")
+        K = self.K.clone()
+        K[:2] *= factor
+        return replace(self, K=K, width=round(self.width * factor), height=round(self.height * factor))
+
+    def to(self, device: torch.device | str) -> Camera:
+        return replace(self, K=self.K.to(device), world_to_camera=self.world_to_camera.to(device))
+
+    def at_time(self, time: float) -> Camera:
+        return replace(self, time=float(time))
+
+
+def look_at(eye: Tensor, target: Tensor, up: Tensor | None = None) -> Tensor:
+    """World-to-camera ``[4, 4]`` (OpenCV) for a camera at ``eye`` looking at ``target``.
+
+    ``up`` is the world up vector (default +z); the camera's y axis points opposite to it.
+    """
+    eye, target = eye.to(torch.float32), target.to(torch.float32)
+    up = torch.tensor([0.0, 0.0, 1.0]) if up is None else up.to(torch.float32)
+    z = torch.nn.functional.normalize(target - eye, dim=0)
+    x = torch.nn.functional.normalize(torch.linalg.cross(z, up), dim=0)
+    y = torch.linalg.cross(z, x)
+    R = torch.stack([x, y, z], dim=0)  # rows: camera axes in world coordinates
+    w2c = torch.eye(4)
+    w2c[:3, :3] = R
+    w2c[:3, 3] = -R @ eye
+    return w2c
+
+
+def intrinsics(fx: float, fy: float, cx: float, cy: float) -> Tensor:
+    """``[3, 3]`` pinhole intrinsics."""
+    return torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=torch.float32)
