@@ -1,0 +1,139 @@
+"""One ``Scene`` object for every dataset: views (camera + lazily loaded image), time, bounds, points.
+
+Loaders (``dnerf``, ``panoptic``, ``n3v``, ``technicolor``, ``hypernerf``, ``synthetic``) build a
+``Scene``; experts, trainers and the harness consume only this.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor
+
+from moegs.camera import Camera
+
+
+class ImageCache:
+    """Bounded LRU cache of decoded images, shared by all views of a scene."""
+
+    def __init__(self, max_items: int = 256) -> None:
+        self.max_items = max_items
+        self._items: OrderedDict[str, Tensor] = OrderedDict()
+
+    def get(self, key: str, load: Callable[[], Tensor]) -> Tensor:
+        if key in self._items:
+            self._items.move_to_end(key)
+            return self._items[key]
+        value = load()
+        if self.max_items > 0:
+            self._items[key] = value
+            if len(self._items) > self.max_items:
+                self._items.popitem(last=False)
+        return value
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+
+@dataclass
+class View:
+    """A camera with its ground truth, loaded on demand.
+
+    Attributes:
+        camera: the camera (carries ``time``, ``frame`` and ``camera_id``).
+        load_image: returns the image ``[H, W, 3]`` float32 in [0, 1] at the camera's resolution,
+            already composited on the scene background.
+        load_mask: optional, returns a mask ``[H, W]`` float32 in [0, 1] (e.g. dynamic region).
+        key: unique identifier used by the cache and in per-view results.
+    """
+
+    camera: Camera
+    load_image: Callable[[], Tensor]
+    key: str
+    load_mask: Callable[[], Tensor] | None = None
+    cache: ImageCache | None = field(default=None, repr=False)
+
+    def image(self) -> Tensor:
+        """``[H, W, 3]`` float32 in [0, 1]."""
+        if self.cache is None:
+            return self.load_image()
+        return self.cache.get(self.key, self.load_image)
+
+    def mask(self) -> Tensor | None:
+        return None if self.load_mask is None else self.load_mask()
+
+
+@dataclass
+class PointCloud:
+    """Initial points ``xyz [P, 3]`` and colours ``rgb [P, 3]`` in [0, 1]; ``source`` says how they were made."""
+
+    xyz: Tensor
+    rgb: Tensor
+    source: str = "unknown"
+    times: Tensor | None = None  # [P] normalised time of each point (STG-style per-frame clouds)
+
+    def __post_init__(self) -> None:
+        if self.xyz.ndim != 2 or self.xyz.shape[1] != 3:
+            raise ValueError(f"PointCloud.xyz must have shape [P, 3], got {list(self.xyz.shape)}")
+        if self.rgb.shape != self.xyz.shape:
+            raise ValueError(f"PointCloud.rgb must have shape {list(self.xyz.shape)}, got {list(self.rgb.shape)}")
+        if not torch.isfinite(self.xyz).all():
+            raise ValueError(f"PointCloud.xyz ({self.source}) contains NaN or Inf")
+
+    def __len__(self) -> int:
+        return self.xyz.shape[0]
+
+
+@dataclass
+class Scene:
+    """A dynamic scene.
+
+    Attributes:
+        name: registry name, e.g. ``dnerf:mutant``.
+        dataset: ``dnerf`` | ``panoptic`` | ``n3v`` | ``technicolor`` | ``hypernerf`` | ``synthetic``.
+        train, test: views; each camera's ``time`` is normalised to [0, 1].
+        num_frames: number of distinct time steps.
+        background: ``[3]`` colour the ground truth is composited on.
+        bbox: ``[2, 3]`` axis-aligned bounds (min, max) of the content.
+        extent: scene radius used to scale densification thresholds (3DGS ``cameras_extent``).
+        points: initial point cloud, or ``None`` when the dataset has none (see ``moegs.data.points``).
+        multiview: True when several cameras see each time step.
+        stand_in: text saying what real data this scene stands in for ("" for real data).
+    """
+
+    name: str
+    dataset: str
+    train: list[View]
+    test: list[View]
+    num_frames: int
+    background: Tensor
+    bbox: Tensor
+    extent: float
+    points: PointCloud | None = None
+    multiview: bool = False
+    stand_in: str = ""
+    cache: ImageCache = field(default_factory=ImageCache, repr=False)
+
+    def __post_init__(self) -> None:
+        if not self.train:
+            raise ValueError(f"scene {self.name!r} has no training views")
+        for view in [*self.train, *self.test]:
+            view.cache = self.cache
+
+    @property
+    def times(self) -> Tensor:
+        """Sorted distinct normalised times of the training views ``[T]``."""
+        return torch.tensor(sorted({v.camera.time for v in self.train}), dtype=torch.float32)
+
+    @property
+    def is_real(self) -> bool:
+        return not self.stand_in
+
+    def summary(self) -> str:
+        cam = self.train[0].camera
+        return (f"{self.name}: {len(self.train)} train / {len(self.test)} test views, {self.num_frames} frames, "
+                f"{cam.width}x{cam.height}, {'multi' if self.multiview else 'mono'}-view"
+                + (f", stand-in for {self.stand_in}" if self.stand_in else ""))
