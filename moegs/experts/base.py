@@ -1,0 +1,85 @@
+"""The ``Expert`` contract shared by every dynamic/static Gaussian method.
+
+An expert owns
+
+* ``splats``: a ``ParameterDict`` of *per-Gaussian* tensors, all with leading dimension ``N``
+  (canonical means, log-scales, raw quaternions, opacity logits, SH, and any per-Gaussian extras
+  such as STG polynomial coefficients or E-D3DGS embeddings). Densification strategies clone,
+  split, prune and relocate exactly these, keeping optimiser state in step.
+* ``fields``: an ``nn.Module`` holding everything that is not per-Gaussian (MLPs, hash grids,
+  hexplanes, temporal embeddings, decoders).
+
+and answers ``frame(t, camera)`` with the activated ``GaussianFrame`` at normalised time ``t``.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import torch
+from torch import Tensor, nn
+
+from moegs.camera import Camera
+from moegs.gaussians import GaussianFrame
+
+
+@dataclass
+class ParamGroup:
+    """One optimiser group: a name, its tensors, the learning rate and an optional schedule.
+
+    ``lr_final`` / ``lr_delay_steps`` / ``lr_delay_mult`` / ``max_steps`` parameterise the 3DGS
+    exponential schedule (``moegs.train.schedules``); ``lr_final=None`` keeps the rate constant.
+    """
+
+    name: str
+    params: list[Tensor]
+    lr: float
+    lr_final: float | None = None
+    lr_delay_steps: int = 0
+    lr_delay_mult: float = 1.0
+    max_steps: int = 30_000
+    eps: float = 1e-15
+
+
+class Expert(nn.Module, metaclass=abc.ABCMeta):
+    """Base class for experts. Subclasses set ``name`` and implement ``frame``.
+
+    Attributes:
+        name: registry name (e.g. ``"deformable"``).
+        splats: per-Gaussian parameters (leading dim ``N``).
+        fields: non-per-Gaussian modules.
+        config: the expert's config dataclass (with ``quick`` / ``paper`` presets).
+    """
+
+    name: ClassVar[str] = ""
+
+    def __init__(self, config: Any, splats: nn.ParameterDict, fields: nn.Module | None = None) -> None:
+        super().__init__()
+        self.config = config
+        self.splats = splats
+        self.fields = fields if fields is not None else nn.Module()
+
+    @property
+    def num_gaussians(self) -> int:
+        return next(iter(self.splats.values())).shape[0]
+
+    @abc.abstractmethod
+    def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
+        """Activated Gaussians at normalised time ``t`` (``camera`` for view-dependent experts)."""
+
+    def decode(self, features: Tensor, camera: Camera) -> Tensor:
+        """Turn a splatted image ``[H, W, C]`` into RGB ``[H, W, 3]`` (identity except STG)."""
+        return features
+
+    @abc.abstractmethod
+    def param_groups(self) -> list[ParamGroup]:
+        """Optimiser groups with each method's learning rates and schedules."""
+
+    def regularization(self, step: int, frame: GaussianFrame | None = None) -> Tensor:
+        """The method's own regularisers added to the photometric loss (zero by default)."""
+        return torch.zeros((), device=next(self.parameters()).device)
+
+    def on_step(self, step: int) -> None:
+        """Hook called before each training step (stage switches, knot growth ...)."""
