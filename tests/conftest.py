@@ -1,0 +1,45 @@
+"""Shared test set-up: fixed seeds, CPU threads, and real-data lookup through ``MOEGS_DATA``."""
+
+from __future__ import annotations
+
+import random
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from moegs.paths import data_root
+
+torch.set_num_threads(2)
+
+
+@pytest.fixture(autouse=True)
+def _fixed_seeds():
+    random.seed(0)
+    np.random.seed(0)
+    torch.manual_seed(0)
+    yield
+
+
+def real_data(relative: str) -> Path:
+    """Path of a staged real dataset under ``MOEGS_DATA``; skips the test with the reason when absent."""
+    root = data_root()
+    if root is None or not (root / relative).exists():
+        pytest.skip(f"real data '{relative}' not found (MOEGS_DATA={root}); see README 'Data'")
+    return root / relative
+
+
+@pytest.fixture
+def mutant_root() -> Path:
+    return real_data("dnerf/mutant")
+
+
+@pytest.fixture
+def basketball_root() -> Path:
+    return real_data("panoptic/basketball")
+
+
+@pytest.fixture
+def lpips_root() -> Path:
+    return real_data("lpips_weights/lpips_tf/alex")
