@@ -16,13 +16,17 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import torch
 from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.gaussians import GaussianFrame
+
+if TYPE_CHECKING:
+    from moegs.data.scene import Scene, View
+    from moegs.train.strategy.base import Strategy
 
 
 @dataclass
@@ -31,6 +35,9 @@ class ParamGroup:
 
     ``lr_final`` / ``lr_delay_steps`` / ``lr_delay_mult`` / ``max_steps`` parameterise the 3DGS
     exponential schedule (``moegs.train.schedules``); ``lr_final=None`` keeps the rate constant.
+    ``optimizer`` is ``"adam"`` (every 3DGS-lineage method) or ``"radam"``. A per-Gaussian tensor
+    (an entry of ``Expert.splats``) must sit in exactly one group so that densification can keep its
+    optimiser state in step.
     """
 
     name: str
@@ -41,10 +48,14 @@ class ParamGroup:
     lr_delay_mult: float = 1.0
     max_steps: int = 30_000
     eps: float = 1e-15
+    optimizer: str = "adam"
+    start_step: int = 0
+    """Iteration at which the schedule starts (its step 0), e.g. the first step of a later stage."""
 
 
 class Expert(nn.Module, metaclass=abc.ABCMeta):
-    """Base class for experts. Subclasses set ``name`` and implement ``frame``.
+    """Base class for experts. Subclasses set ``name`` and ``config_class`` and implement
+    ``from_scene``, ``frame`` and ``param_groups``.
 
     Attributes:
         name: registry name (e.g. ``"deformable"``).
@@ -54,12 +65,20 @@ class Expert(nn.Module, metaclass=abc.ABCMeta):
     """
 
     name: ClassVar[str] = ""
+    config_class: ClassVar[type]
+    """The config dataclass; it provides ``from_preset(name)`` (``"quick"`` / ``"paper"``) and a
+    ``train`` field (``moegs.train.loop.TrainConfig``)."""
 
     def __init__(self, config: Any, splats: nn.ParameterDict, fields: nn.Module | None = None) -> None:
         super().__init__()
         self.config = config
         self.splats = splats
         self.fields = fields if fields is not None else nn.Module()
+
+    @classmethod
+    @abc.abstractmethod
+    def from_scene(cls, scene: Scene, config: Any) -> Expert:
+        """A freshly initialised expert for ``scene`` (points, extent, time range)."""
 
     @property
     def num_gaussians(self) -> int:
@@ -81,5 +100,22 @@ class Expert(nn.Module, metaclass=abc.ABCMeta):
         """The method's own regularisers added to the photometric loss (zero by default)."""
         return torch.zeros((), device=next(self.parameters()).device)
 
-    def on_step(self, step: int) -> None:
-        """Hook called before each training step (stage switches, knot growth ...)."""
+    def on_step(self, step: int) -> bool:
+        """Hook called before each training step (1-based iteration; stage switches, SH degree ...).
+
+        Return True when a new stage starts and ``param_groups()`` changed: the loop then builds fresh
+        optimisers from it (as 4DGaussians does between its coarse and fine stages).
+        """
+        return False
+
+    def strategy(self) -> Strategy | None:
+        """The densification strategy acting on ``splats`` (None: the set of Gaussians is fixed)."""
+        return None
+
+    def view_groups(self, views: list[View]) -> list[int] | None:
+        """Group index of each training view, or None for one group.
+
+        Each training step draws ``TrainConfig.batch_size`` views from every group, so a batch of
+        independent fits (e.g. one model per frame) sees all of its members every step.
+        """
+        return None

@@ -1,0 +1,56 @@
+"""Registry of experts, importable without torch.
+
+Each entry names the class as a ``"module:Class"`` string; the module is imported only by
+:func:`get_expert_class`, so ``moegs list`` stays light. Add an expert with one line in ``_REGISTRY``
+(or :func:`register` at run time).
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class ExpertSpec:
+    name: str
+    target: str
+    """``"package.module:Class"`` of the ``Expert`` subclass."""
+    description: str
+
+
+_REGISTRY: dict[str, ExpertSpec] = {
+    spec.name: spec
+    for spec in (
+        ExpertSpec("static", "moegs.experts.static:StaticExpert",
+                   "3DGS without deformation, trained on all frames (baseline)"),
+        ExpertSpec("mcmc", "moegs.experts.mcmc:MCMCExpert",
+                   "3DGS-MCMC trained per frame: one static model per time step"),
+    )
+}
+
+
+def register(name: str, target: str, description: str) -> None:
+    """Add an expert; ``target`` is ``"module:Class"``."""
+    if ":" not in target:
+        raise ValueError(f"expert target must look like 'package.module:Class', got {target!r}")
+    if name in _REGISTRY:
+        raise ValueError(f"expert {name!r} is already registered ({_REGISTRY[name].target})")
+    _REGISTRY[name] = ExpertSpec(name, target, description)
+
+
+def list_experts() -> list[ExpertSpec]:
+    """Registered experts, sorted by name (imports nothing)."""
+    return [_REGISTRY[k] for k in sorted(_REGISTRY)]
+
+
+def get_spec(name: str) -> ExpertSpec:
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown expert {name!r}; registered experts: {', '.join(sorted(_REGISTRY))}")
+    return _REGISTRY[name]
+
+
+def get_expert_class(name: str) -> type:
+    """Import and return the ``Expert`` subclass registered as ``name``."""
+    module, _, cls = get_spec(name).target.partition(":")
+    return getattr(importlib.import_module(module), cls)
