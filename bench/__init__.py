@@ -1,0 +1,1 @@
+"""Benchmark harness: paper table specs, runner, cache, LaTeX tables, plots and report."""
