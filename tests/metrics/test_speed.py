@@ -1,0 +1,74 @@
+"""The speed/memory protocol with dummy render functions."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from moegs.metrics import SpeedResult, measure_render
+
+
+def test_times_only_the_render_with_warmup():
+    calls = []
+
+    def render(view):
+        calls.append(view)
+        time.sleep(0.25 if len(calls) == 1 else 0.002 * (1 + view))  # a slow first call (warm-up cost)
+        return torch.zeros(4)
+
+    res = measure_render(render, views=[0, 1, 2], warmup=2, repeats=3)
+    assert isinstance(res, SpeedResult)
+    assert len(calls) == 2 + 3 * 3
+    assert len(res.per_view_ms) == 3 and [len(s) for s in res.samples_ms] == [3, 3, 3]
+    assert all(t >= 1.9 for t in res.per_view_ms[:1]) and res.per_view_ms[2] >= 5.9
+    assert max(max(s) for s in res.samples_ms) < 200  # the slow first call was a warm-up, not timed
+    assert res.ms_per_view_median == pytest.approx(np.median(res.per_view_ms))
+    assert res.fps_median == pytest.approx(1000 / res.ms_per_view_median)
+    assert res.device.startswith("cpu (") and res.warmup == 2 and res.repeats == 3
+    json.dumps(res.to_dict())
+
+
+def test_device_inferred_from_nested_output():
+    from dataclasses import dataclass
+
+    @dataclass
+    class Out:
+        info: dict
+        image: torch.Tensor
+
+    res = measure_render(lambda v: Out({"n": 1}, torch.ones(2)), views=["a"], warmup=1, repeats=1)
+    assert res.device.startswith("cpu")
+
+
+def test_cpu_peak_rss_delta():
+    def render(view):
+        buf = np.ones(64 * 2**20 // 8)  # 64 MiB, touched
+        return float(buf[-1])
+
+    res = measure_render(render, views=[0, 1], warmup=1, repeats=2, device="cpu")
+    if res.memory_kind != "cpu_rss_peak_delta":
+        pytest.skip("peak RSS cannot be reset here (/proc/self/clear_refs); only a lower bound is reported")
+    assert 50 < res.peak_memory_mb < 400, res.peak_memory_mb
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_cuda_peak_allocated():
+    def render(view):
+        return torch.ones(16 * 2**20 // 4, device="cuda").sum()
+
+    res = measure_render(render, views=[0], warmup=1, repeats=2)
+    assert res.memory_kind == "cuda_max_allocated" and res.device.startswith("cuda")
+    assert res.peak_memory_mb >= 16
+
+
+def test_exceptions():
+    with pytest.raises(ValueError, match=r"^measure_render: `views` is empty$"):
+        measure_render(lambda v: None, [])
+    with pytest.raises(ValueError, match=r"^measure_render: `device=None` infers the device"):
+        measure_render(lambda v: None, [0], warmup=0)
+    with pytest.raises(ValueError, match=r"^measure_render: need warmup >= 0 and repeats >= 1"):
+        measure_render(lambda v: None, [0], repeats=0)
