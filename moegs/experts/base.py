@@ -15,14 +15,16 @@ and answers ``frame(t, camera)`` with the activated ``GaussianFrame`` at normali
 from __future__ import annotations
 
 import abc
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, ClassVar
 
 import torch
 from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.gaussians import GaussianFrame
+from moegs.train.config import TrainConfig
 
 if TYPE_CHECKING:
     from moegs.data.scene import Scene, View
@@ -53,6 +55,30 @@ class ParamGroup:
     """Iteration at which the schedule starts (its step 0), e.g. the first step of a later stage."""
 
 
+@dataclass
+class ExpertConfig:
+    """Base of expert configs: the training settings plus named presets.
+
+    Subclasses add their fields (each with a docstring; constants that differ from the paper or the
+    original code say where they come from) and implement ``presets``.
+    """
+
+    train: TrainConfig = field(default_factory=TrainConfig)
+    """Settings of the training loop (iterations, batch, D-SSIM weight, resolution ...)."""
+
+    @classmethod
+    def presets(cls) -> dict[str, Callable[[], ExpertConfig]]:
+        """Named presets: ``"quick"`` (CPU minutes, small resolution) and ``"paper"`` (original protocol)."""
+        raise NotImplementedError(f"{cls.__name__} defines no presets")
+
+    @classmethod
+    def from_preset(cls, name: str) -> ExpertConfig:
+        presets = cls.presets()
+        if name not in presets:
+            raise ValueError(f"unknown preset {name!r} for {cls.__name__}; valid presets: {', '.join(presets)}")
+        return presets[name]()
+
+
 class Expert(nn.Module, metaclass=abc.ABCMeta):
     """Base class for experts. Subclasses set ``name`` and ``config_class`` and implement
     ``from_scene``, ``frame`` and ``param_groups``.
@@ -65,11 +91,10 @@ class Expert(nn.Module, metaclass=abc.ABCMeta):
     """
 
     name: ClassVar[str] = ""
-    config_class: ClassVar[type]
-    """The config dataclass; it provides ``from_preset(name)`` (``"quick"`` / ``"paper"``) and a
-    ``train`` field (``moegs.train.loop.TrainConfig``)."""
+    config_class: ClassVar[type[ExpertConfig]]
+    """The config dataclass (an ``ExpertConfig``)."""
 
-    def __init__(self, config: Any, splats: nn.ParameterDict, fields: nn.Module | None = None) -> None:
+    def __init__(self, config: ExpertConfig, splats: nn.ParameterDict, fields: nn.Module | None = None) -> None:
         super().__init__()
         self.config = config
         self.splats = splats
@@ -77,7 +102,7 @@ class Expert(nn.Module, metaclass=abc.ABCMeta):
 
     @classmethod
     @abc.abstractmethod
-    def from_scene(cls, scene: Scene, config: Any) -> Expert:
+    def from_scene(cls, scene: Scene, config: ExpertConfig) -> Expert:
         """A freshly initialised expert for ``scene`` (points, extent, time range)."""
 
     @property

@@ -1,0 +1,41 @@
+"""``TrainConfig``: the settings of the one training loop that every expert shares."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class TrainConfig:
+    """How to train (the method-specific parts live in each expert's config)."""
+
+    iterations: int = 30_000
+    """Number of training iterations (3DGS default 30k)."""
+    batch_size: int = 1
+    """Views per step drawn from each view group (3DGS-lineage methods: one image per step)."""
+    lambda_dssim: float = 0.2
+    """Loss = (1 - lambda) L1 + lambda (1 - SSIM) (3DGS ``lambda_dssim``)."""
+    resolution_scale: float = 1.0
+    """Image scale used when the scene is loaded for this run (1.0 = the dataset's protocol)."""
+    seed: int = 0
+    """Seeds the initialisation subsampling, view order and every random op of training."""
+    eval_every: int = 0
+    """Evaluate on the test views every this many iterations (0: only at the end)."""
+    checkpoint_every: int = 0
+    """Write a checkpoint every this many iterations (0: only at the end)."""
+    log_every: int = 10
+    """Refresh the progress bar's loss / #Gaussians every this many iterations."""
+    metric_profile: str = "moegs"
+    """``moegs.metrics`` profile used for evaluation ("moegs" = the paper's conventions)."""
+    max_eval_views: int | None = None
+    """Evaluate on at most this many test views, evenly spaced (None: all)."""
+    backend: str = "auto"
+    """Rasterizer backend (``moegs.render.BACKENDS``)."""
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1:
+            raise ValueError(f"TrainConfig.iterations must be >= 1, got {self.iterations}")
+        if self.batch_size < 1:
+            raise ValueError(f"TrainConfig.batch_size must be >= 1, got {self.batch_size}")
+        if not 0.0 <= self.lambda_dssim <= 1.0:
+            raise ValueError(f"TrainConfig.lambda_dssim must be in [0, 1], got {self.lambda_dssim}")
