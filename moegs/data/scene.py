@@ -102,6 +102,8 @@ class Scene:
         points: initial point cloud, or ``None`` when the dataset has none (see ``moegs.data.points``).
         multiview: True when several cameras see each time step.
         stand_in: text saying what real data this scene stands in for ("" for real data).
+        meta: dataset-specific facts the loader read or chose (frame window, time convention,
+            near/far bounds, ignored distortion, ...); JSON-serialisable values only.
     """
 
     name: str
@@ -115,6 +117,7 @@ class Scene:
     points: PointCloud | None = None
     multiview: bool = False
     stand_in: str = ""
+    meta: dict = field(default_factory=dict)
     cache: ImageCache = field(default_factory=ImageCache, repr=False)
 
     def __post_init__(self) -> None:

@@ -1,0 +1,218 @@
+"""Shared reading helpers for the dataset loaders: JSON with named-key errors, images, resizing,
+time windows, camera extent, COLMAP models.
+
+Every error names the file it concerns and, where it applies, the expected and the found value.
+Video decoding lives in ``moegs.data._video``, initial point clouds in ``moegs.data._init_points``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from PIL import Image, UnidentifiedImageError
+from torch import Tensor
+
+from moegs.camera import Camera
+
+RESAMPLE = {
+    "nearest": Image.Resampling.NEAREST,
+    "bilinear": Image.Resampling.BILINEAR,
+    "bicubic": Image.Resampling.BICUBIC,  # PIL's default in ``Image.resize`` (3DGS ``PILtoTorch``)
+    "lanczos": Image.Resampling.LANCZOS,
+    "area": Image.Resampling.BOX,  # box filter == cv2.INTER_AREA for integer factors (NeRF half_res)
+}
+
+
+# -- files and JSON ---------------------------------------------------------------------------------
+def require_file(path: Path, what: str) -> Path:
+    """``path`` if it is a file, else ``FileNotFoundError`` naming it and what it should hold."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{what}: expected file {path} but it does not exist")
+    return path
+
+
+def load_json(path: Path, what: str) -> Any:
+    """Parsed JSON; a missing or malformed file raises an error naming it."""
+    require_file(path, what)
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{what}: {path} is not valid JSON ({err})") from err
+
+
+def key(mapping: Any, name: str | int, path: Path, where: str = "") -> Any:
+    """``mapping[name]`` or ``KeyError`` naming the key, the file and the place in it."""
+    if not isinstance(mapping, dict) or name not in mapping:
+        place = f" in {where}" if where else ""
+        found = sorted(map(str, mapping))[:12] if isinstance(mapping, dict) else type(mapping).__name__
+        raise KeyError(f"{path}: missing key {name!r}{place} (found {found})")
+    return mapping[name]
+
+
+# -- images -----------------------------------------------------------------------------------------
+def image_size(path: Path) -> tuple[int, int]:
+    """``(width, height)`` from the file header only (no pixel decoding)."""
+    require_file(path, "image")
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except (UnidentifiedImageError, OSError) as err:
+        raise ValueError(f"cannot read image {path}: {err}") from err
+
+
+def read_image(path: Path) -> np.ndarray:
+    """Decoded image ``[H, W, C]`` uint8 with C = 3 (RGB) or 4 (RGBA); grey and palette become RGB(A)."""
+    require_file(path, "image")
+    try:
+        with Image.open(path) as im:
+            if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
+                im = im.convert("RGBA")
+            elif im.mode != "RGB":
+                im = im.convert("RGB")
+            return np.asarray(im).copy()
+    except (UnidentifiedImageError, OSError) as err:
+        raise ValueError(f"cannot decode image {path}: {err}") from err
+
+
+def read_mask(path: Path, size: tuple[int, int]) -> Tensor:
+    """Mask ``[H, W]`` float32 in [0, 1] at ``size = (width, height)`` (any non-zero pixel counts as 1)."""
+    require_file(path, "mask")
+    try:
+        with Image.open(path) as im:
+            arr = np.asarray(im.convert("L"), dtype=np.float32) / 255.0
+    except (UnidentifiedImageError, OSError) as err:
+        raise ValueError(f"cannot decode mask {path}: {err}") from err
+    mask = torch.from_numpy((arr > 0).astype(np.float32))
+    if (mask.shape[1], mask.shape[0]) != size:
+        mask = resize(mask[..., None], size, "nearest")[..., 0]
+    return mask
+
+
+def check_size(arr: np.ndarray | Tensor, expected: tuple[int, int], path: Path | str) -> None:
+    """Raise if an ``[H, W, ...]`` array is not ``expected = (width, height)``."""
+    got = (int(arr.shape[1]), int(arr.shape[0]))
+    if got != tuple(expected):
+        raise ValueError(
+            f"{path}: image is {got[0]}x{got[1]} but {expected[0]}x{expected[1]} was expected "
+            "(from the calibration / the first image of the scene)"
+        )
+
+
+def to_rgb(arr: np.ndarray, background: Tensor) -> Tensor:
+    """uint8 ``[H, W, 3|4]`` -> float32 ``[H, W, 3]`` in [0, 1]; RGBA is composited on ``background [3]``."""
+    img = torch.from_numpy(np.ascontiguousarray(arr)).to(torch.float32) / 255.0
+    if img.shape[-1] == 4:
+        alpha = img[..., 3:]
+        img = img[..., :3] * alpha + background.to(torch.float32) * (1.0 - alpha)
+    return img
+
+
+def resize(img: Tensor, size: tuple[int, int], method: str = "bicubic") -> Tensor:
+    """Resize float ``[H, W, C]`` to ``size = (width, height)`` channel by channel with a PIL filter.
+
+    Runs on float32 ("F" mode) so no 8-bit rounding is added; values are clamped back to the input range.
+    """
+    if method not in RESAMPLE:
+        raise ValueError(f"unknown resample method {method!r}; valid: {sorted(RESAMPLE)}")
+    if (img.shape[1], img.shape[0]) == tuple(size):
+        return img
+    arr = img.detach().cpu().numpy().astype(np.float32)
+    out = np.stack(
+        [
+            np.asarray(Image.fromarray(arr[..., c], mode="F").resize(size, RESAMPLE[method]))
+            for c in range(arr.shape[-1])
+        ],
+        axis=-1,
+    )
+    return torch.from_numpy(out).clamp_(float(img.min()), float(img.max()))
+
+
+def resize_uint8(arr: np.ndarray, size: tuple[int, int], method: str = "bicubic") -> np.ndarray:
+    """Resize uint8 ``[H, W, C]`` to ``size = (width, height)`` with a PIL filter (as the GS loaders do)."""
+    if method not in RESAMPLE:
+        raise ValueError(f"unknown resample method {method!r}; valid: {sorted(RESAMPLE)}")
+    if (arr.shape[1], arr.shape[0]) == tuple(size):
+        return arr
+    return np.array(Image.fromarray(arr).resize(size, RESAMPLE[method]))
+
+
+def load_rgb(
+    path: Path, native: tuple[int, int], size: tuple[int, int], background: Tensor, method: str
+) -> Tensor:
+    """Read ``path``, check its native size, composite on ``background``, resize to ``size``.
+
+    Returns ``[H, W, 3]`` float32 in [0, 1]. RGBA is composited at native resolution and the
+    composite is resized (linear order; the NeRF code resizes RGBA first, a sub-1e-3 difference).
+    """
+    arr = read_image(path)
+    check_size(arr, native, path)
+    if arr.shape[-1] == 4:
+        return resize(to_rgb(arr, background), size, method)
+    return to_rgb(resize_uint8(arr, size, method), background)
+
+
+# -- scene-level quantities -------------------------------------------------------------------------
+def camera_extent(cameras: Sequence[Camera]) -> float:
+    """3DGS ``getNerfppNorm`` radius: 1.1 x the largest distance of a camera centre from their mean."""
+    centers = torch.stack([c.center for c in cameras]).to(torch.float64)
+    radius = (centers - centers.mean(0)).norm(dim=-1).max().item()
+    return 1.1 * radius if radius > 0 else 1.0
+
+
+def points_bbox(xyz: Tensor, quantile: float = 0.0) -> Tensor:
+    """``[2, 3]`` axis-aligned bounds of ``xyz [P, 3]``; ``quantile`` > 0 trims outliers on both sides."""
+    if quantile > 0 and xyz.shape[0] > 10:
+        q = torch.tensor([quantile, 1.0 - quantile], dtype=xyz.dtype)
+        return torch.quantile(xyz, q, dim=0).to(torch.float32)
+    return torch.stack([xyz.min(0).values, xyz.max(0).values]).to(torch.float32)
+
+
+def frame_window(frames: tuple[int, int] | None, available: int, what: str) -> tuple[int, int]:
+    """Validated half-open window ``(start, stop)`` of frame indices; ``None`` means all."""
+    if frames is None:
+        return 0, available
+    start, stop = int(frames[0]), int(frames[1])
+    if not (0 <= start < stop <= available):
+        raise ValueError(f"{what}: frame window {frames} is outside 0..{available} (half-open start, stop)")
+    return start, stop
+
+
+def normalised_time(frame: int, start: int, stop: int, total: int, mode: str) -> float:
+    """Time of ``frame`` in [0, 1).
+
+    ``global``: ``frame / total`` (4DGaussians and the MoE-GS router on N3V: frame/300).
+    ``local``: ``(frame - start) / (stop - start)`` (STG segments, MoE-GS on Technicolor).
+    """
+    if mode == "global":
+        return frame / total
+    if mode == "local":
+        return (frame - start) / (stop - start)
+    raise ValueError(f"time mode must be 'global' or 'local', got {mode!r}")
+
+
+# -- COLMAP models --------------------------------------------------------------------------------
+def read_colmap(path: Path) -> Any:
+    """``pycolmap.Reconstruction`` of a COLMAP model folder (text or binary), with a clear error."""
+    import pycolmap
+
+    if not path.is_dir() or not any((path / f"images.{ext}").is_file() for ext in ("bin", "txt")):
+        raise FileNotFoundError(
+            f"COLMAP model: expected {path}/images.bin or images.txt (with cameras.* and points3D.*)"
+        )
+    try:
+        return pycolmap.Reconstruction(str(path))
+    except Exception as err:  # pycolmap raises plain RuntimeError/ValueError on bad files
+        raise ValueError(f"cannot read COLMAP model {path}: {err}") from err
+
+
+def colmap_w2c(image: Any) -> Tensor:
+    """OpenCV world-to-camera ``[4, 4]`` of a ``pycolmap.Image`` (a method in pycolmap >= 3.12)."""
+    pose = image.cam_from_world() if callable(image.cam_from_world) else image.cam_from_world
+    w2c = torch.eye(4, dtype=torch.float64)
+    w2c[:3] = torch.from_numpy(np.asarray(pose.matrix(), dtype=np.float64))
+    return w2c.to(torch.float32)

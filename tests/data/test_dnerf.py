@@ -1,0 +1,140 @@
+"""D-NeRF loader: native layout fixture (poses, times, background) and the real ``mutant`` scene."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from moegs.data.dnerf import blender_to_w2c, load_dnerf, w2c_to_blender
+
+
+def _fixtures():
+    name = "moegs_tests_data_fixtures"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("fixtures.py"))
+        sys.modules[name] = module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+fx = _fixtures()
+
+
+def test_blender_round_trip():
+    for w2c in fx.ring_w2c(5):
+        torch.testing.assert_close(blender_to_w2c(w2c_to_blender(w2c)), w2c, atol=1e-5, rtol=0)
+    # Blender camera looks down its -z: the camera-to-world z column points away from the target
+    w2c = fx.ring_w2c(1)[0]
+    c2w_gl = w2c_to_blender(w2c)
+    centre = c2w_gl[:3, 3]
+    assert torch.dot(c2w_gl[:3, 2], -centre) < 0
+
+
+def test_fixture_counts_sizes_times_poses(tmp_path):
+    truth = fx.write_dnerf(tmp_path)
+    scene = load_dnerf(tmp_path, num_points=100)
+    assert (len(scene.train), len(scene.test)) == (6, 3)
+    assert scene.dataset == "dnerf" and not scene.multiview and scene.is_real
+    cam = scene.train[0].camera
+    assert (cam.width, cam.height) == (16, 16)
+    focal = 0.5 * 16 / math.tan(0.5 * truth["angle"])
+    assert cam.fx == pytest.approx(focal) and cam.cx == pytest.approx(8.0)
+    for view, w2c, t in zip(scene.train, truth["train"]["w2c"], truth["train"]["times"], strict=True):
+        torch.testing.assert_close(view.camera.world_to_camera, w2c, atol=1e-5, rtol=0)
+        assert view.camera.time == pytest.approx(t)
+    assert scene.num_frames == 6
+    assert len(scene.points) == 100 and (scene.points.xyz.abs() <= 1.3).all()
+    torch.testing.assert_close(scene.bbox, torch.tensor([[-1.3] * 3, [1.3] * 3]))
+    # extent = 1.1 x max distance of the ring cameras from their centroid (radius 4 ring)
+    assert scene.extent == pytest.approx(1.1 * 4.0, rel=1e-4)
+
+
+@pytest.mark.parametrize("background, value", [("white", 1.0), ("black", 0.0)])
+def test_background_composite(tmp_path, background, value):
+    fx.write_dnerf(tmp_path, counts={"train": 2, "test": 1})
+    scene = load_dnerf(tmp_path, background=background, num_points=0)
+    img = scene.train[1].image()
+    assert img.shape == (16, 16, 3) and img.dtype == torch.float32
+    torch.testing.assert_close(img[:, :8], torch.full((16, 8, 3), value))  # alpha 0: background only
+    expected = torch.tensor(fx.colour(1, 1), dtype=torch.float32) / 255
+    torch.testing.assert_close(img[:, 8:], expected.expand(16, 8, 3))
+    assert scene.points is None
+
+
+def test_half_resolution_and_val_split(tmp_path):
+    fx.write_dnerf(tmp_path)
+    scene = load_dnerf(tmp_path, resolution_scale=0.5, test_split="val", num_points=0)
+    assert len(scene.test) == 2
+    cam = scene.test[0].camera
+    assert (cam.width, cam.height) == (8, 8)
+    img = scene.test[0].image()
+    assert img.shape == (8, 8, 3)
+    torch.testing.assert_close(img[:, :4], torch.ones(8, 4, 3))
+
+
+def test_errors_name_file_key_and_size(tmp_path):
+    with pytest.raises(FileNotFoundError, match="transforms_train.json"):
+        load_dnerf(tmp_path)
+    fx.write_dnerf(tmp_path, counts={"train": 2, "test": 1})
+    # missing key: names the key and the file
+    path = tmp_path / "transforms_test.json"
+    meta = json.loads(path.read_text())
+    del meta["frames"][0]["time"]
+    path.write_text(json.dumps(meta))
+    with pytest.raises(KeyError, match=r"transforms_test\.json.*'time'.*frames\[0\]"):
+        load_dnerf(tmp_path, num_points=0)
+    del meta["camera_angle_x"]
+    path.write_text(json.dumps(meta))
+    with pytest.raises(KeyError, match="camera_angle_x"):
+        load_dnerf(tmp_path, num_points=0)
+    # missing image: the loader is lazy, the read names the path
+    fx.write_dnerf(tmp_path, counts={"train": 2, "test": 1})
+    (tmp_path / "train" / "r_001.png").unlink()
+    scene = load_dnerf(tmp_path, num_points=0)
+    with pytest.raises(FileNotFoundError, match=r"train/r_001\.png"):
+        scene.train[1].image()
+    # wrong size: names the file, expected and found
+    fx._save(np.zeros((10, 12, 4), np.uint8), tmp_path / "train" / "r_001.png")
+    with pytest.raises(ValueError, match=r"r_001\.png: image is 12x10 but 16x16"):
+        scene.train[1].image()
+    with pytest.raises(ValueError, match="background"):
+        load_dnerf(tmp_path, background="green")
+
+
+# -- real data --------------------------------------------------------------------------------------
+@pytest.mark.realdata
+def test_mutant(mutant_root):
+    scene = load_dnerf(mutant_root, num_points=1000)
+    assert (len(scene.train), len(scene.test)) == (150, 20)
+    val = load_dnerf(mutant_root, test_split="val", num_points=0)
+    assert len(val.test) == 20
+    cams = [v.camera for v in scene.train + scene.test]
+    assert {(c.width, c.height) for c in cams} == {(800, 800)}
+    meta = json.loads((mutant_root / "transforms_test.json").read_text())
+    assert [v.camera.time for v in scene.test] == pytest.approx([f["time"] for f in meta["frames"]])
+    assert all(0.0 <= c.time <= 1.0 for c in cams)
+    assert min(c.time for c in cams) == 0.0 and max(c.time for c in cams) == 1.0
+    # the object sits at the origin: the origin projects inside every image, near the centre
+    for c in cams:
+        p = c.world_to_camera @ torch.tensor([0.0, 0.0, 0.0, 1.0])
+        assert p[2] > 0
+        uv = (c.K @ (p[:3] / p[2]))[:2]
+        assert ((uv - 400).abs() < 200).all(), (c.name, uv)
+    # white background: where alpha == 0 the composite is exactly white; elsewhere it matches rgb*a + (1-a)
+    view = scene.test[0]
+    from PIL import Image
+
+    rgba = np.asarray(Image.open(mutant_root / "test" / "r_000.png")).astype(np.float32) / 255
+    img = view.image().numpy()
+    transparent = rgba[..., 3] == 0
+    assert transparent.mean() > 0.3
+    assert (img[transparent] == 1.0).all()
+    expected = rgba[..., :3] * rgba[..., 3:] + (1 - rgba[..., 3:])
+    np.testing.assert_allclose(img, expected, atol=1e-6)

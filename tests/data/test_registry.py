@@ -1,0 +1,93 @@
+"""``load_scene`` registry: name parsing, data-root lookup, aliases, explicit paths, clear errors."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+import types
+from pathlib import Path
+
+import pytest
+
+from moegs.data import list_datasets, list_scenes, load_scene, resolve_scene_path
+
+
+def _fixtures():
+    name = "moegs_tests_data_fixtures"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("fixtures.py"))
+        sys.modules[name] = module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+fx = _fixtures()
+
+
+def test_list_datasets():
+    assert list_datasets() == ["dnerf", "panoptic", "n3v", "technicolor", "hypernerf", "synthetic"]
+
+
+def test_unknown_dataset_lists_valid_ones():
+    with pytest.raises(ValueError, match=r"unknown dataset 'blender'.*dnerf.*hypernerf"):
+        load_scene("blender:lego")
+    with pytest.raises(ValueError, match="<dataset>:<scene>"):
+        load_scene("mutant")
+
+
+def test_missing_scene_says_where_and_what(tmp_path, monkeypatch):
+    monkeypatch.setenv("MOEGS_DATA", str(tmp_path))
+    with pytest.raises(FileNotFoundError, match=r"dnerf/lego .*transforms_\{train,val,test\}\.json"):
+        load_scene("dnerf:lego")
+    (tmp_path / "n3v" / "sear_steak").mkdir(parents=True)
+    with pytest.raises(
+        FileNotFoundError, match=r"sear_steak exists but does not look like a n3v scene.*poses_bounds"
+    ):
+        load_scene("n3v:sear_steak")
+
+
+def test_resolution_aliases_and_kwargs(tmp_path, monkeypatch):
+    monkeypatch.setenv("MOEGS_DATA", str(tmp_path))
+    fx.write_dnerf(tmp_path / "dnerf" / "hook", counts={"train": 2, "test": 1})
+    fx.write_hypernerf(tmp_path / "hypernerf" / "vrig-chicken", steps=2)
+    fx.write_hypernerf(tmp_path / "hypernerf" / "broom2", steps=2)
+    fx.write_technicolor_colmap(tmp_path / "technicolor" / "Birthday", frames=(151, 153), naming="absolute")
+    assert list_scenes("hypernerf") == ["broom2", "vrig-chicken"]
+    scene = load_scene("dnerf:hook", background="black", num_points=0)
+    assert scene.name == "dnerf:hook" and scene.dataset == "dnerf" and scene.background.sum() == 0
+    assert resolve_scene_path("hypernerf:chicken").name == "vrig-chicken"
+    assert resolve_scene_path("hypernerf:broom").name == "broom2"
+    assert load_scene("hypernerf:vrig-chicken", num_points=0).name == "hypernerf:vrig-chicken"
+    tech = load_scene("technicolor:birthday", frames=(151, 153))
+    assert tech.name == "technicolor:birthday" and tech.num_frames == 2
+
+
+def test_explicit_path(tmp_path):
+    fx.write_panoptic(tmp_path / "somewhere", frames=2)
+    scene = load_scene("panoptic:mine", path=tmp_path / "somewhere", num_points=50)
+    assert scene.name == "panoptic:mine" and scene.num_frames == 2
+    with pytest.raises(FileNotFoundError, match="nowhere"):
+        load_scene("panoptic:mine", path=tmp_path / "nowhere")
+
+
+def test_synthetic_delegates(monkeypatch):
+    calls = {}
+    fake = types.ModuleType("moegs.data.synthetic")
+
+    def load_synthetic(name, **kwargs):
+        calls["args"] = (name, kwargs)
+        return "scene"
+
+    fake.load_synthetic = load_synthetic
+    monkeypatch.setitem(sys.modules, "moegs.data.synthetic", fake)
+    assert load_scene("synthetic:orbit", frames=(0, 4)) == "scene"
+    assert calls["args"] == ("orbit", {"frames": (0, 4)})
+    load_scene("synthetic:orbit", path="/tmp/gen")
+    assert calls["args"] == ("orbit", {"root": "/tmp/gen"})
+
+
+@pytest.mark.realdata
+def test_real_scenes_by_name(mutant_root, basketball_root):
+    assert load_scene("dnerf:mutant", num_points=0).summary().startswith("dnerf:mutant: 150 train / 20 test")
+    pan = load_scene("panoptic:basketball", frames=(0, 10), num_points=500)
+    assert pan.num_frames == 10 and len(pan.test) == 40

@@ -1,0 +1,98 @@
+"""Technicolor loader: STG (local) and Ex4DGS (absolute) per-frame COLMAP layouts, and the raw layout."""
+
+from __future__ import annotations
+
+import importlib.util
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from moegs.data.technicolor import WINDOWS, camera_number, load_technicolor, quat_to_rotmat
+
+
+def _fixtures():
+    name = "moegs_tests_data_fixtures"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("fixtures.py"))
+        sys.modules[name] = module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+fx = _fixtures()
+
+
+def _check(scene, truth, frames):
+    n = frames[1] - frames[0]
+    assert (len(scene.train), len(scene.test)) == (11 * n, n)
+    assert {v.camera.camera_id for v in scene.test} == {10}
+    assert scene.num_frames == n and scene.multiview
+    assert sorted({v.camera.time for v in scene.train}) == pytest.approx([k / n for k in range(n)])
+    for v in scene.train + scene.test:
+        c = v.camera.camera_id
+        torch.testing.assert_close(v.camera.world_to_camera, truth["w2c"][c], atol=1e-5, rtol=0)
+        f, cx, cy = truth["intr"][c]
+        assert (v.camera.fx, v.camera.fy, v.camera.cx, v.camera.cy) == pytest.approx((f, f, cx, cy))
+        assert (v.camera.width, v.camera.height) == (40, 24)
+    v = next(v for v in scene.train if v.camera.camera_id == 3 and v.camera.frame == frames[0] + 1)
+    expected = torch.tensor(fx.colour(3, frames[0] + 1), dtype=torch.float32) / 255
+    torch.testing.assert_close(v.image(), expected.expand(24, 40, 3))
+
+
+def test_quaternion_round_trip():
+    for w2c in fx.ring_w2c(5):
+        R = w2c[:3, :3].double().numpy()
+        torch.testing.assert_close(
+            quat_to_rotmat(torch.tensor(fx._rotmat_to_quat(R))), torch.from_numpy(R), atol=1e-5, rtol=0
+        )
+    assert camera_number("cam10.png") == 10 and camera_number("Birthday_undist_00151_10.png") == 10
+
+
+@pytest.mark.parametrize("naming, names, binary", [("local", "stg", False), ("absolute", "ex4dgs", True)])
+def test_colmap_layout(tmp_path, naming, names, binary):
+    truth = fx.write_technicolor_colmap(tmp_path, frames=(5, 8), naming=naming, names=names, binary=binary)
+    scene = load_technicolor(tmp_path, frames=(5, 8))
+    assert scene.meta["layout"] == "colmap" and scene.meta["folder_naming"] == naming
+    _check(scene, truth, (5, 8))
+    assert len(scene.points) == 2 and scene.points.source.startswith("COLMAP")
+    allp = load_technicolor(tmp_path, frames=(5, 8), points_frames="all")
+    assert len(allp.points) == 6
+    torch.testing.assert_close(allp.points.times, torch.tensor([0.0, 0, 1 / 3, 1 / 3, 2 / 3, 2 / 3]))
+
+
+def test_raw_layout_and_default_window(tmp_path):
+    root = tmp_path / "Birthday"
+    truth = fx.write_technicolor_raw(root, frames=(151, 153))
+    assert WINDOWS["birthday"] == (151, 201)
+    scene = load_technicolor(root, frames=(151, 153), num_points=100)
+    assert scene.meta["layout"] == "raw"
+    _check(scene, truth, (151, 153))
+    assert "fallback" in scene.points.source
+    half = load_technicolor(root, frames=(151, 152), resolution_scale=0.5, num_points=0)
+    assert half.train[0].image().shape == (12, 20, 3)
+    # the protocol window of Birthday (151, 201) is the default; frames missing there are reported
+    with pytest.raises(FileNotFoundError, match="camera 0 for frame 153"):
+        load_technicolor(root, num_points=0)
+
+
+def test_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="colmap_<frame>"):
+        load_technicolor(tmp_path)
+    fx.write_technicolor_colmap(tmp_path, frames=(0, 2))
+    with pytest.raises(FileNotFoundError, match="colmap_0..colmap_4"):
+        load_technicolor(tmp_path, frames=(10, 15))
+    (tmp_path / "colmap_1" / "images" / "cam04.png").unlink()
+    with pytest.raises(FileNotFoundError, match=r"camera 4 for frame 1 in .*colmap_1"):
+        load_technicolor(tmp_path, frames=(0, 2))
+    fx.write_technicolor_colmap(tmp_path, frames=(0, 2))
+    fx._save(np.zeros((3, 3, 3), np.uint8), tmp_path / "colmap_1" / "images" / "cam04.png")
+    scene = load_technicolor(tmp_path, frames=(0, 2))
+    with pytest.raises(ValueError, match=r"cam04\.png: image is 3x3 but 40x24"):
+        next(v for v in scene.train if v.camera.name == "cam04/00001").image()
+    shutil.rmtree(tmp_path / "colmap_0" / "sparse")
+    with pytest.raises(FileNotFoundError, match=r"colmap_0/sparse/0/images\.bin or images\.txt"):
+        load_technicolor(tmp_path, frames=(0, 2))
