@@ -34,13 +34,15 @@ def make_scene(
     tiny: float = 0.0,
     huge: float = 0.0,
     culled: float = 0.1,
+    thin: bool = False,
     seed: int = 0,
 ) -> dict:
     """Projected Gaussians: ``means2d`` partly off-screen (10% margin), radii from random 2D covariances.
 
     ``opaque``: fraction with opacity 0.995 (triggers the ALPHA_MAX clamp and early termination);
     ``tiny``: fraction with sub-pixel footprints (radius 1); ``huge``: fraction with radii up to 3x the
-    image size; ``culled``: fraction with radius 0 (behind the camera).
+    image size; ``culled``: fraction with radius 0 (behind the camera); ``thin``: needle-like splats
+    (minor axis 2-10% of the major one; most of the bounding box is empty).
     """
     gen = torch.Generator().manual_seed(seed)
 
@@ -54,11 +56,12 @@ def make_scene(
     sigma = torch.where(pick < tiny, 0.2 + 0.1 * rand(n), sigma)
     sigma = torch.where((pick >= tiny) & (pick < tiny + huge), max(width, height) * rand(n), sigma)
     theta = math.pi * rand(n)
-    s_major, s_minor = sigma, sigma * (0.3 + 0.7 * rand(n))
+    s_major, s_minor = sigma, sigma * ((0.02 + 0.08 * rand(n)) if thin else (0.3 + 0.7 * rand(n)))
     c, s = torch.cos(theta), torch.sin(theta)
     # covariance R diag(s_major^2, s_minor^2) R^T, plus the usual 0.3 px^2 low-pass blur
-    cxx = c * c * s_major**2 + s * s * s_minor**2 + 0.3
-    cyy = s * s * s_major**2 + c * c * s_minor**2 + 0.3
+    blur = 0.01 if thin else 0.3
+    cxx = c * c * s_major**2 + s * s * s_minor**2 + blur
+    cyy = s * s * s_major**2 + c * c * s_minor**2 + blur
     cxy = c * s * (s_major**2 - s_minor**2)
     det = cxx * cyy - cxy * cxy
     conics = torch.stack([cyy / det, -cxy / det, cxx / det], dim=1)
@@ -118,6 +121,7 @@ CASES = {
     "rgb-opaque-128x96": (3000, 128, 96, 3, 1, {"opaque": 0.5}),
     "tiny-splats": (2000, 64, 48, 3, 1, {"tiny": 0.7}),
     "huge-splats": (40, 31, 17, 3, 2, {"huge": 0.5}),
+    "needles": (1500, 64, 64, 3, 2, {"thin": True, "opaque": 0.2}),
 }
 
 

@@ -76,6 +76,10 @@ static float power_cutoff(float opacity) {
     return (float)(log((double)ALPHA_MIN / (double)opacity) - POWER_CUT_MARGIN);
 }
 
+/* Below this many items a loop runs on the calling thread: a fork/join costs more than the work
+ * (and much more on an oversubscribed machine). */
+#define PAR_MIN 16384
+
 /* Error codes (negative return values). */
 #define ERR_NOMEM (-1)
 #define ERR_GROUP (-2)
@@ -99,6 +103,43 @@ MOEGS_API int moegs_max_threads(void) {
  * platforms' linkers want PyInit_<name> exported). It is never meant to be imported: doing so
  * raises SystemError. The real entry points are the moegs_* symbols, used through ctypes. */
 MOEGS_API void *PyInit__raster(void) { return 0; }
+
+/*
+ * Row culling (exact): on a pixel row with offset dy, the pixels that can pass the alpha test
+ * satisfy power(dx) >= pcut, i.e. the quadratic
+ *     (a/2) dx^2 + (b dy) dx + (c/2 dy^2 + pcut) <= 0,
+ * an interval of dx when a > 0. We solve it in double with pcut lowered by a margin that covers
+ * the float32 rounding of `power` (relative to the size of its terms on this row), then widen
+ * the pixel range by one pixel on each side. Pixels outside the returned [lo, hi] (tile-local)
+ * are therefore pixels whose alpha test fails, so skipping them changes nothing. When the conic
+ * is not usable (a <= 0, non-finite values) the whole range is kept. Returns 0 if the row is
+ * certainly empty.
+ */
+static inline int row_span(float dy, float mx, float ca, float cb, float cc, float pcut, int tx0,
+                           int lx0, int lx1, int *lo, int *hi) {
+    *lo = lx0;
+    *hi = lx1;
+    if (!(ca > 0.0f) || !isfinite(pcut) || !isfinite(cb) || !isfinite(cc)) return 1;
+    /* largest |dx| on this row segment bounds the size of the terms of power */
+    const double dxa = fabs((double)tx0 + lx0 + 0.5 - mx), dxb = fabs((double)tx0 + lx1 + 0.5 - mx);
+    const double mdx = dxa > dxb ? dxa : dxb, ady = fabs((double)dy);
+    const double terms = 0.5 * fabs((double)ca) * mdx * mdx + 0.5 * fabs((double)cc) * ady * ady +
+                         fabs((double)cb) * mdx * ady;
+    const double cut = (double)pcut - 1e-3 - 4e-6 * terms;
+    const double qa = 0.5 * (double)ca, qb = (double)cb * dy, qc = 0.5 * (double)cc * dy * dy + cut;
+    const double disc = qb * qb - 4.0 * qa * qc;
+    if (disc < 0.0) return 0;
+    const double sq = sqrt(disc);
+    /* pixel x has dx = x + 0.5 - mx, so x = mx - 0.5 + dx */
+    const double xlo = (double)mx - 0.5 + (-qb - sq) / (2.0 * qa) - (double)tx0;
+    const double xhi = (double)mx - 0.5 + (-qb + sq) / (2.0 * qa) - (double)tx0;
+    if (xlo > (double)lx1 + 1.0 || xhi < (double)lx0 - 1.0) return 0;
+    if (xlo - 1.0 > (double)lx0) *lo = (int)floor(xlo) - 1;
+    if (xhi + 1.0 < (double)lx1) *hi = (int)ceil(xhi) + 1;
+    if (*lo < lx0) *lo = lx0;
+    if (*hi > lx1) *hi = lx1;
+    return *lo <= *hi;
+}
 
 /* Inclusive pixel box of a Gaussian, exactly as _torch._bbox_pixels computes it in float32:
  *   x0 = clamp_min(ceil(mx - r - 0.5), 0),  x1 = clamp_max(floor(mx + r - 0.5), W - 1).
@@ -147,7 +188,7 @@ MOEGS_API int64_t moegs_prepare(int64_t n, int64_t d, int32_t num_groups, int32_
     int bad_group = 0;
     if (nthreads < 1) nthreads = 1;
 
-#pragma omp parallel for num_threads(nthreads) schedule(static) reduction(| : bad_group)
+#pragma omp parallel for num_threads(nthreads) schedule(static) reduction(| : bad_group) if (n > PAR_MIN)
     for (int64_t k = 0; k < n; ++k) {
         const int64_t i = order[k];
         float *g = geo + k * GEO;
@@ -271,7 +312,9 @@ MOEGS_API int moegs_forward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t 
                 float wsum = 0.0f;
                 for (int ly = ly0; ly <= ly1; ++ly) {
                     const float dy = ((float)(ty0 + ly) + 0.5f) - my;
-                    for (int lx = lx0; lx <= lx1; ++lx) {
+                    int rx0, rx1;
+                    if (!row_span(dy, mx, ca, cb, cc, pcut, tx0, lx0, lx1, &rx0, &rx1)) continue;
+                    for (int lx = rx0; lx <= rx1; ++lx) {
                         const int64_t s = (int64_t)gk * npix + ly * tw + lx;
                         if (done[s]) continue;
                         const float dx = ((float)(tx0 + lx) + 0.5f) - mx;
@@ -316,7 +359,7 @@ MOEGS_API int moegs_forward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t 
     if (err) { free(slot); return ERR_NOMEM; }
 
     /* contrib: each Gaussian sums its slots in its own (fixed) tile order */
-#pragma omp parallel for num_threads(nthreads) schedule(static)
+#pragma omp parallel for num_threads(nthreads) schedule(static) if (total > PAR_MIN)
     for (int64_t k = 0; k < n; ++k) {
         float sum = 0.0f;
         for (int64_t j = gstart[k]; j < gstart[k + 1]; ++j) sum += slot[pairpos[j]];
@@ -417,7 +460,9 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
                 for (int64_t c = 0; c < d; ++c) gcol[c] = 0.0;
                 for (int ly = ly0; ly <= ly1; ++ly) {
                     const float dy = ((float)(ty0 + ly) + 0.5f) - my;
-                    for (int lx = lx0; lx <= lx1; ++lx) {
+                    int rx0, rx1;
+                    if (!row_span(dy, mx, ca, cb, cc, pcut, tx0, lx0, lx1, &rx0, &rx1)) continue;
+                    for (int lx = rx0; lx <= rx1; ++lx) {
                         const int64_t s = (int64_t)gk * npix + ly * tw + lx;
                         if (j > lst[s]) continue; /* behind this pixel's last contributor */
                         const float dx = ((float)(tx0 + lx) + 0.5f) - mx;
@@ -465,7 +510,7 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
     if (err) { free(slot); return ERR_NOMEM; }
 
     /* reduce the pair slots per Gaussian in a fixed order and scatter to the original order */
-#pragma omp parallel num_threads(nthreads)
+#pragma omp parallel num_threads(nthreads) if (total > PAR_MIN)
     {
         double *acc = (double *)malloc((size_t)stride * sizeof(double));
         if (!acc) {
