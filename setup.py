@@ -22,7 +22,8 @@ from setuptools.command.build_ext import build_ext
 
 # flags shared with `python -m moegs.render._cpu build`; loaded by path so that building never
 # imports the moegs package (which needs torch)
-_flags = runpy.run_path(os.path.join("moegs", "render", "_cpu", "_build.py"))
+_HERE = os.path.dirname(os.path.abspath(__file__))
+_flags = runpy.run_path(os.path.join(_HERE, "moegs", "render", "_cpu", "_build.py"))
 
 
 def _has_openmp(compiler) -> bool:

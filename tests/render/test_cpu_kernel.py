@@ -218,3 +218,19 @@ def test_validation_names_the_argument(name, value, match):
     scene[name] = value
     with pytest.raises((ValueError, TypeError), match=match):
         _cpu.composite(**scene)
+
+
+def test_loader_reports_why_when_disabled(monkeypatch):
+    """MOEGS_DISABLE_CPU_KERNEL forces the fallback and load_error() says so."""
+    assert _cpu.library_path() is not None and _cpu.load_error() is None
+    monkeypatch.setenv("MOEGS_DISABLE_CPU_KERNEL", "1")
+    _cpu._reset()
+    try:
+        assert not _cpu.is_available()
+        assert "MOEGS_DISABLE_CPU_KERNEL" in _cpu.load_error()
+        with pytest.raises(RuntimeError, match="unavailable"):
+            _cpu.composite(**make_scene(3, 8, 8))
+    finally:
+        monkeypatch.delenv("MOEGS_DISABLE_CPU_KERNEL")
+        _cpu._reset()
+    assert _cpu.is_available()

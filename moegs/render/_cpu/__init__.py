@@ -24,6 +24,7 @@ from pathlib import Path
 
 import torch
 from torch import Tensor
+from torch.autograd.function import once_differentiable
 
 __all__ = ["composite", "is_available", "load_error", "library_path", "TILE_SIZE"]
 
@@ -161,6 +162,7 @@ class _Composite(torch.autograd.Function):
         return image, alpha, contrib
 
     @staticmethod
+    @once_differentiable
     def backward(ctx, grad_image, grad_alpha, _grad_contrib):
         lib = _load()
         order, geo, box, grp, col, gstart, tile_off, lists, pairpos, tfinal, last = ctx.saved_tensors

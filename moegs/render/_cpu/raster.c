@@ -474,8 +474,8 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
                         const int clamped = raw > ALPHA_MAX;
                         const float a = clamped ? ALPHA_MAX : raw;
                         if (a < ALPHA_MIN) continue;
-                        const double om = 1.0 - (double)a;
-                        const double Tj = T[s] / om; /* transmittance in front of j */
+                        const double inv_om = 1.0 / (1.0 - (double)a); /* 1 / (1 - alpha_j) */
+                        const double Tj = T[s] * inv_om; /* transmittance in front of j */
                         T[s] = Tj;
                         const double w = (double)a * Tj;
                         const float *gp = gi_loc + s * d;
@@ -488,7 +488,7 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
                             Bs[c] += w * ck[c];
                         }
                         if (clamped) continue; /* d alpha / d (opacity, power) = 0 */
-                        const double dal = Tj * dot_c - dot_b / om + (double)ga_loc[s] * Tf[s] / om;
+                        const double dal = Tj * dot_c + ((double)ga_loc[s] * Tf[s] - dot_b) * inv_om;
                         gop += (double)e * dal;
                         const double dp = (double)a * dal; /* dL/dpower */
                         ga += -0.5 * (double)dx * dx * dp;
