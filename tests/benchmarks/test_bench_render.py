@@ -1,0 +1,196 @@
+"""Rasterizer benchmarks (pytest-benchmark; skipped unless ``--benchmark-enable``, e.g. ``tox -e bench``).
+
+Scenes follow ``specs/cpu_feasibility.md``: N Gaussians in the frustum at depth 2-5, log-normal
+scales proportional to N^-1/2 (about the same per-pixel depth complexity for every N), opacity
+sigmoid(randn), fx = width, RGB. "fwd" runs under ``no_grad``; "fwd+bwd" includes the projection
+and the backward to means, quats, scales, opacities and colours.
+
+Each case also records, in ``benchmark.extra_info``, the peak RSS of one render in a fresh
+subprocess (``VmHWM``, see ``proc_status_mb``; tracemalloc misses torch's allocator) and the RSS
+just before rendering, so the difference is what the render itself needs. On CUDA it records
+``torch.cuda.max_memory_allocated`` instead.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+import torch
+
+from moegs import Camera, GaussianFrame
+from moegs.camera import intrinsics
+from moegs.render import rasterize, rasterize_multi
+from moegs.render._torch import _bbox_pixels
+from moegs.render.projection import covariance_3d, project
+
+pytestmark = pytest.mark.benchmark
+
+SIZES = [(5_000, 128), (20_000, 256), (100_000, 512)]
+ROUNDS, WARMUP = 5, 1
+# The torch reference holds every (pixel, Gaussian) pair of the bounding-box rule at once. Its peak RSS
+# above the idle process, measured on these scenes at 100k / 512² (17.9M pairs): 2.9 GB forward
+# (160 B/pair), 3.6 GB forward+backward (200 B/pair). Cases whose estimate exceeds the budget are
+# skipped: with the default 3 GB that is torch fwd+bwd at 100k / 512².
+TORCH_BYTES_PER_PAIR = {False: 160, True: 200}
+TORCH_BUDGET_MB = float(os.environ.get("MOEGS_BENCH_TORCH_MB", 3072))
+
+
+def make_scene(n: int, res: int, *, seed: int = 0, device: str = "cpu") -> tuple[GaussianFrame, Camera]:
+    """The feasibility-study scene: ``n`` Gaussians seen by a ``res x res`` camera."""
+    gen = torch.Generator().manual_seed(seed)
+    camera = Camera(
+        K=intrinsics(res, res, res / 2, res / 2), world_to_camera=torch.eye(4), width=res, height=res
+    )
+    z = 2 + 3 * torch.rand(n, generator=gen)
+    xy = (torch.rand(n, 2, generator=gen) - 0.5) * z[:, None]  # inside the 2 x atan(0.5) FoV
+    frame = GaussianFrame(
+        means=torch.cat([xy, z[:, None]], dim=1),
+        quats=torch.nn.functional.normalize(torch.randn(n, 4, generator=gen), dim=-1),
+        scales=torch.exp(torch.randn(n, 3, generator=gen) * 0.3) * 3.0 / n**0.5,
+        opacities=torch.sigmoid(torch.randn(n, generator=gen)),
+        colors=torch.rand(n, 3, generator=gen),
+    )
+    return frame.to(device), camera.to(device)
+
+
+def torch_memory_mb(n: int, res: int, backward: bool) -> float:
+    """Estimated extra RSS (MB) of the torch reference for this scene: pairs x bytes per pair."""
+    frame, camera = make_scene(n, res)
+    proj = project(frame.means, covariance_3d(frame.quats, frame.scales), frame.opacities, camera)
+    x0, x1, y0, y1 = _bbox_pixels(proj.means2d, proj.radii, res, res)
+    pairs = ((x1 - x0 + 1).clamp(min=0) * (y1 - y0 + 1).clamp(min=0))[proj.radii > 0].sum()
+    return float(pairs) * TORCH_BYTES_PER_PAIR[backward] / 2**20
+
+
+def backends() -> list:
+    """Every backend that can run here, each a pytest param (unavailable ones skip with the reason)."""
+    from moegs.render import _cpu_kernel, _cuda
+
+    cpu_reason = _cpu_kernel()[1]
+    cuda_reason = None if _cuda.is_available() else "needs CUDA and gsplat"
+    return [
+        "torch",
+        pytest.param("cpu", marks=pytest.mark.skipif(bool(cpu_reason), reason=cpu_reason or "")),
+        pytest.param("cuda", marks=pytest.mark.skipif(cuda_reason is not None, reason=str(cuda_reason))),
+    ]
+
+
+def _leaves(frame: GaussianFrame) -> GaussianFrame:
+    """The same frame with fresh leaf tensors that require grad."""
+    names = ("means", "quats", "scales", "opacities", "colors")
+    return GaussianFrame(**{k: getattr(frame, k).detach().clone().requires_grad_(True) for k in names})
+
+
+def _run(render, frame, backward: bool) -> None:
+    """One render (and backward), synchronised on CUDA."""
+    if backward:
+        render(frame).sum().backward()
+    else:
+        with torch.no_grad():
+            render(frame)
+    if frame.device.type == "cuda":
+        torch.cuda.synchronize()
+
+
+_MEMORY_SCRIPT = textwrap.dedent(
+    """
+    import json, sys, torch
+    sys.path.insert(0, {here!r})
+    import test_bench_render as b
+    case = json.loads(sys.argv[1])
+    torch.set_num_threads(case.pop("threads"))
+    render, frame = b.case_renderer(**case)
+    before = b.proc_status_mb("VmRSS")
+    b._run(render, frame, case["backward"])
+    print(json.dumps({{"rss_before_mb": before, "peak_rss_mb": b.proc_status_mb("VmHWM")}}))
+    """
+)
+
+
+def proc_status_mb(key: str) -> float:
+    """``VmRSS`` (current) or ``VmHWM`` (peak) resident memory of this process in MB (Linux).
+
+    Used instead of ``resource.getrusage(...).ru_maxrss``: on Linux that value survives fork + exec,
+    so a child starts with its parent's peak, while ``VmHWM`` belongs to the exec'd address space.
+    """
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(f"{key}:"):
+            return int(line.split()[1]) / 1024
+    raise KeyError(f"{key} not in /proc/self/status")
+
+
+def peak_memory(**case) -> dict[str, float]:
+    """Peak RSS (MB) of one render of ``case`` in a fresh subprocess, and the RSS just before it.
+
+    On CUDA it reports ``torch.cuda.max_memory_allocated`` instead (RSS says nothing about GPU memory).
+    """
+    if case["device"] == "cuda":
+        torch.cuda.reset_peak_memory_stats()
+        render, frame = case_renderer(**case)
+        _run(render, frame, case["backward"])
+        return {"peak_cuda_allocated_mb": torch.cuda.max_memory_allocated() / 2**20}
+    if not Path("/proc/self/status").exists():
+        return {}  # not Linux: no per-process peak we can trust
+    script = _MEMORY_SCRIPT.format(here=str(Path(__file__).parent))
+    arg = json.dumps({**case, "threads": torch.get_num_threads()})
+    done = subprocess.run([sys.executable, "-c", script, arg], capture_output=True, text=True, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def case_renderer(
+    *,
+    n: int,
+    res: int,
+    backend: str,
+    backward: bool,
+    experts: int = 1,
+    single_pass: bool = True,
+    device="cpu",
+):
+    """``(render, frame)``: ``render(frame)`` returns a tensor to sum for the backward."""
+    frame, camera = make_scene(n * experts, res, device=device)
+    if backward:
+        frame = _leaves(frame)
+    bounds = [(k * n, (k + 1) * n) for k in range(experts)]
+
+    def render(f: GaussianFrame) -> torch.Tensor:
+        if experts == 1:
+            return rasterize(f, camera, backend=backend).image
+        parts = [f.select(slice(a, b)) for a, b in bounds]
+        if single_pass:
+            return rasterize_multi(parts, camera, backend=backend).images
+        return torch.stack([rasterize(p, camera, backend=backend).image for p in parts])
+
+    return render, frame
+
+
+def _bench(benchmark, **case) -> None:
+    device = "cuda" if case["backend"] == "cuda" else "cpu"
+    render, frame = case_renderer(device=device, **case)
+    benchmark.extra_info.update(case)
+    benchmark.extra_info.update(peak_memory(device=device, **case))
+    benchmark.pedantic(_run, args=(render, frame, case["backward"]), rounds=ROUNDS, warmup_rounds=WARMUP)
+
+
+@pytest.mark.parametrize("backend", backends())
+@pytest.mark.parametrize("backward", [False, True], ids=["fwd", "fwd+bwd"])
+@pytest.mark.parametrize(("n", "res"), SIZES, ids=[f"{n // 1000}k-{r}px" for n, r in SIZES])
+def test_rasterize(benchmark, n, res, backward, backend):
+    if backend == "torch" and (need := torch_memory_mb(n, res, backward)) > TORCH_BUDGET_MB:
+        pytest.skip(
+            f"torch reference would need ~{need:.0f} MB > {TORCH_BUDGET_MB:.0f} MB (MOEGS_BENCH_TORCH_MB)"
+        )
+    _bench(benchmark, n=n, res=res, backend=backend, backward=backward)
+
+
+@pytest.mark.parametrize("backend", backends())
+@pytest.mark.parametrize("single_pass", [True, False], ids=["single-pass", "separate"])
+def test_three_experts(benchmark, single_pass, backend):
+    """K = 3 experts of 5k Gaussians at 128², fwd+bwd: one ``rasterize_multi`` vs three ``rasterize``."""
+    _bench(benchmark, n=5_000, res=128, backend=backend, backward=True, experts=3, single_pass=single_pass)
