@@ -55,7 +55,8 @@ class RenderOutput:
             or None with ``return_depth=False``.
         info: ``backend`` (the one used); with ``return_stats``: ``radii`` int32 ``[N]``, ``visible``
             bool ``[N]``, ``contrib`` ``[N]`` (sum over pixels of ``T_i alpha_i``, no gradient) and
-            ``means2d`` ``[N, 2]`` whose ``.grad`` holds the screen-space gradient after backward.
+            ``means2d`` ``[N, 2]`` whose ``.grad`` holds the screen-space gradient after backward (on
+            CUDA a leaf filled from gsplat's projected means by a backward hook).
     """
 
     image: Tensor
@@ -126,7 +127,7 @@ def _fallback(reason: str) -> str:
         warnings.warn(
             f"moegs.render: {reason}; falling back to the pure-PyTorch reference rasterizer (exact, slower)",
             RuntimeWarning,
-            stacklevel=4,
+            stacklevel=5,  # the caller of rasterize / rasterize_multi
         )
     return "torch"
 

@@ -83,32 +83,21 @@ def _render_group(means, covars, opacities, features, camera, eps2d, antialiased
     import gsplat  # optional dependency, imported only for CUDA tensors
 
     n = len(means)
-    grad_on = torch.is_grad_enabled()
+    inputs = (means, covars, opacities, features)
+    keep_graph = torch.is_grad_enabled() and any(t.requires_grad for t in inputs)
     ones = torch.ones(n, 1, dtype=features.dtype, device=features.device, requires_grad=with_contrib)
-    with torch.set_grad_enabled(grad_on or with_contrib):
+    with torch.set_grad_enabled(keep_graph or with_contrib):
         image, alpha, meta = gsplat.rasterization(
-            means,
-            None,
-            None,
-            opacities,
-            torch.cat([features, ones], dim=1),
-            camera.world_to_camera[None].to(means),
-            camera.K[None].to(means),
-            camera.width,
-            camera.height,
-            near_plane=camera.near,
-            far_plane=camera.far,
-            eps2d=eps2d,
-            sh_degree=None,
-            packed=False,
-            render_mode="RGB",
-            rasterize_mode="antialiased" if antialiased else "classic",
-            covars=covars,
-        )
+            means, None, None, opacities, torch.cat([features, ones], dim=1),
+            camera.world_to_camera[None].to(means), camera.K[None].to(means), camera.width, camera.height,
+            near_plane=camera.near, far_plane=camera.far, eps2d=eps2d, sh_degree=None, packed=False,
+            render_mode="RGB", rasterize_mode="antialiased" if antialiased else "classic", covars=covars,
+        )  # fmt: skip
         contrib = None
         if with_contrib:
-            contrib = torch.autograd.grad(image[..., -1].sum(), ones, retain_graph=grad_on)[0][:, 0].detach()
-    if not grad_on:
+            (grad_ones,) = torch.autograd.grad(image[..., -1].sum(), ones, retain_graph=keep_graph)
+            contrib = grad_ones[:, 0]
+    if not keep_graph:
         image, alpha = image.detach(), alpha.detach()
     per_axis = meta["radii"].reshape(n, -1)  # [1, n] (gsplat < 1.5) or [1, n, 2]
     radii = torch.where((per_axis > 0).all(-1), per_axis.amax(-1), 0).to(torch.int32)
