@@ -95,7 +95,9 @@ def run(fn, scene: dict, seed: int = 1):
     inputs = {k: (v.detach().clone().requires_grad_(True) if k in DIFF else v) for k, v in scene.items()}
     image, alpha, contrib = fn(**inputs)
     gen = torch.Generator().manual_seed(seed)
-    loss = (image * torch.randn(image.shape, generator=gen)).sum() + (alpha * torch.randn(alpha.shape, generator=gen)).sum()
+    weights_image = torch.randn(image.shape, generator=gen)
+    weights_alpha = torch.randn(alpha.shape, generator=gen)
+    loss = (image * weights_image).sum() + (alpha * weights_alpha).sum()
     loss.backward()
     return image.detach(), alpha.detach(), contrib, {k: inputs[k].grad for k in DIFF}
 
@@ -105,10 +107,13 @@ def assert_matches_reference(scene: dict) -> None:
     image, alpha, contrib, grads = run(_cpu.composite, scene)
     torch.testing.assert_close(image, ref_image, rtol=0, atol=1e-5)
     torch.testing.assert_close(alpha, ref_alpha, rtol=0, atol=1e-5)
-    torch.testing.assert_close(contrib, ref_contrib, rtol=1e-4, atol=1e-4 * max(ref_contrib.abs().max().item(), 1e-12))
+    contrib_scale = max(ref_contrib.abs().max().item(), 1e-12)
+    torch.testing.assert_close(contrib, ref_contrib, rtol=1e-4, atol=1e-4 * contrib_scale)
     for name in DIFF:
-        scale = ref_grads[name].abs().max().item()
-        torch.testing.assert_close(grads[name], ref_grads[name], rtol=1e-4, atol=1e-5 * max(scale, 1e-12), msg=lambda m, n=name: f"grad {n}: {m}")  # fmt: skip
+        scale = max(ref_grads[name].abs().max().item(), 1e-12)
+        torch.testing.assert_close(
+            grads[name], ref_grads[name], rtol=1e-4, atol=1e-5 * scale, msg=lambda m, n=name: f"grad {n}: {m}"
+        )
 
 
 CASES = {

@@ -219,6 +219,8 @@ def composite(
     if colors.dim() != 2 or colors.shape[1] < 1:
         raise ValueError(f"composite: colors must have shape [N, D] with D >= 1, got {tuple(colors.shape)}")
     n = colors.shape[0]
+    if n >= 2**31:
+        raise ValueError(f"composite: at most 2**31 - 1 Gaussians are supported, got {n}")
     if means2d.shape != (n, 2):
         raise _shape_error("means2d", f"[N, 2] = [{n}, 2]", means2d)
     if conics.shape != (n, 3):
@@ -241,8 +243,9 @@ def composite(
         raise ValueError(f"composite: width and height must be >= 1, got {width}x{height}")
     if num_groups < 1:
         raise ValueError(f"composite: num_groups must be >= 1, got {num_groups}")
-    for name, t in (("means2d", means2d), ("conics", conics), ("opacities", opacities),
-                    ("colors", colors), ("depths", depths), ("radii", radii), ("groups", groups)):  # fmt: skip
+    named = {"means2d": means2d, "conics": conics, "opacities": opacities, "colors": colors}
+    named.update(depths=depths, radii=radii, groups=groups)
+    for name, t in named.items():
         if t is not None and t.device.type != "cpu":
             raise ValueError(f"composite: {name} must be a CPU tensor, got device {t.device}")
     if groups is not None and n > 0:
