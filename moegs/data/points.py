@@ -196,7 +196,7 @@ def triangulate(
     views: Sequence[View] | Sequence[Tensor],
     cameras: Sequence[Camera] | None = None,
     *,
-    frames: str = "one",
+    frames: str | int = "one",
     max_num_features: int = 8192,
     max_reproj_error: float = 2.0,
     min_points: int = 10,
@@ -212,7 +212,8 @@ def triangulate(
         frames: ``"one"``: every given view is one static snapshot (pass the views of a single time,
             e.g. ``[v for v in scene.train if v.camera.frame == 0]``); ``"all"``: the views are grouped
             by ``camera.time``, each group (>= 2 views) is triangulated on its own and the clouds are
-            merged with per-point ``times`` (STG-style); groups that fail are skipped.
+            merged with per-point ``times`` (STG-style); groups that fail are skipped; an ``int``:
+            only the views whose ``camera.frame`` equals it (images of other frames are never loaded).
         max_num_features: SIFT features per image.
         max_reproj_error: points with a larger mean reprojection error (pixels) are dropped.
         min_points: fewer points raise ``TriangulationError`` (per group for ``frames="one"``; overall
@@ -221,19 +222,31 @@ def triangulate(
     Returns:
         ``PointCloud`` with ``xyz [P, 3]``, ``rgb [P, 3]`` (COLMAP's colours) and ``times [P]`` for ``"all"``.
     """
-    if views and isinstance(views[0], View):
-        if cameras is not None:
-            raise ValueError("triangulate: pass either views, or images together with cameras, not both")
-        images = [v.image() for v in views]  # type: ignore[union-attr]
-        cams = [v.camera for v in views]  # type: ignore[union-attr]
-    else:
-        if cameras is None:
-            raise ValueError("triangulate: images need their cameras (cameras=[...])")
-        images, cams = list(views), list(cameras)  # type: ignore[arg-type]
-    if len(images) != len(cams):
-        raise ValueError(f"triangulate: {len(images)} images but {len(cams)} cameras")
-    if frames not in ("one", "all"):
-        raise ValueError(f"triangulate: frames must be 'one' or 'all', got {frames!r}")
+    if isinstance(frames, bool) or not (isinstance(frames, int) or frames in ("one", "all")):
+        raise ValueError(f"triangulate: frames must be 'one', 'all' or a frame index, got {frames!r}")
+    is_views = bool(views) and isinstance(views[0], View)
+    if is_views and cameras is not None:
+        raise ValueError("triangulate: pass either views, or images together with cameras, not both")
+    if not is_views and cameras is None:
+        raise ValueError("triangulate: images need their cameras (cameras=[...])")
+    items = list(views)
+    cams = [v.camera for v in items] if is_views else list(cameras)  # type: ignore[union-attr,arg-type]
+    if len(items) != len(cams):
+        raise ValueError(f"triangulate: {len(items)} images but {len(cams)} cameras")
+    if isinstance(frames, int):  # select one frame index before decoding any image
+        keep = [i for i, c in enumerate(cams) if c.frame == frames]
+        if not keep:
+            raise ValueError(
+                f"triangulate: no view has frame {frames}; frames present: "
+                f"{sorted({c.frame for c in cams})[:20]}"
+            )
+        items, cams, frames = [items[i] for i in keep], [cams[i] for i in keep], "one"
+    if frames == "one" and len({c.time for c in cams}) > 1:
+        raise ValueError(
+            f"triangulate(frames='one'): the views span {len({c.time for c in cams})} different "
+            "times; pass the views of one instant, a frame index (frames=0) or frames='all'"
+        )
+    images = [v.image() for v in items] if is_views else items  # type: ignore[union-attr]
 
     if frames == "one":
         groups = {cams[0].time: list(range(len(cams)))} if cams else {}

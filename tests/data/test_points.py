@@ -101,6 +101,16 @@ def test_triangulation_per_frame_merged_and_views(static_frame):
     cloud = triangulate(views, frames="all")
     assert cloud.times is not None and set(cloud.times.unique().tolist()) == {0.0, t1}
     assert cloud.times.shape == (len(cloud),)
+    with pytest.raises(ValueError, match="different times"):
+        triangulate(views)
+    views = [
+        View(camera=replace(v.camera, frame=int(v.key[0] == "b")), load_image=v.load_image, key=v.key)
+        for v in views
+    ]
+    one = triangulate(views, frames=1)  # only frame 1 (t = 0.5) is read
+    assert one.times is None and len(one) >= 10
+    with pytest.raises(ValueError, match="frames present: \\[0, 1\\]"):
+        triangulate(views, frames=7)
 
 
 def test_triangulation_errors(static_frame):
