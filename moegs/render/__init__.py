@@ -117,7 +117,8 @@ def _cpu_kernel() -> tuple[Any, str]:
         return None, f"the compiled CPU kernel cannot be imported ({err})"
     is_available = getattr(_cpu, "is_available", None)
     if is_available is None or not is_available():
-        return None, "the compiled CPU kernel (moegs.render._cpu) is not built or failed to load"
+        detail = getattr(_cpu, "load_error", lambda: None)() or "not built"
+        return None, f"the compiled CPU kernel (moegs.render._cpu) is unavailable: {detail}"
     return _cpu, ""
 
 

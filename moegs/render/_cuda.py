@@ -10,8 +10,10 @@ It matches the torch reference only to a tolerance. Differences from ``_torch.py
 
 * alpha clamp 0.999 (gsplat) instead of 0.99 (3DGS, ``_torch.ALPHA_MAX``);
 * gsplat stops a pixel when ``T (1 - alpha) <= 1e-4`` (ours: ``< 1e-4``);
-* screen radius: gsplat uses per-axis radii (``3.33 sigma`` or an opacity-aware extent, depending
-  on the version) instead of 3DGS's ``ceil(3 sqrt(lambda_max))`` with the 0.1 eigen-gap floor;
+* screen radius: gsplat uses per-axis radii ``ceil(e sqrt(cov_ii))`` with ``e = 3.33`` or, in recent
+  versions, ``e = min(3.33, sqrt(2 ln(255 opacity)))``, instead of 3DGS's ``ceil(3 sqrt(lambda_max))``
+  with the 0.1 eigen-gap floor; it also culls opacity (x compensation) < 1/255, which changes only
+  ``visible`` since such splats never pass the alpha cut;
 * tiles: gsplat evaluates a Gaussian at every pixel of the 16x16 tiles its radius touches, not only
   inside its ``[mean - r, mean + r]`` box, so faint tails (alpha >= 1/255) can reach a few more pixels;
 * culling: gsplat keeps ``near <= z <= far`` (ours: ``near < z < far``).

@@ -8,6 +8,7 @@ import torch
 
 from moegs import Camera, GaussianFrame
 from moegs.camera import intrinsics
+from moegs.render import _cpu_kernel
 
 
 def _make_camera(width: int = 24, height: int = 18, *, focal: float | None = None) -> Camera:
@@ -64,26 +65,12 @@ def make_frame():
     return _make_frame
 
 
-def _cpu_kernel_reason() -> str | None:
-    """None when the compiled CPU kernel can run, else why not (for skip messages)."""
-    try:
-        from moegs.render import _cpu
-    except ImportError as err:
-        return f"moegs.render._cpu cannot be imported: {err}"
-    if not getattr(_cpu, "is_available", lambda: False)():
-        error = getattr(_cpu, "load_error", lambda: "not built")()
-        return (
-            f"compiled CPU kernel not available ({error}); build it with `python -m moegs.render._cpu build`"
-        )
-    return None
-
-
 @pytest.fixture
 def require_cpu_kernel():
     """Skip the test, with the reason, unless the compiled CPU kernel can run."""
-    reason = _cpu_kernel_reason()
-    if reason is not None:
-        pytest.skip(reason)
+    kernel, reason = _cpu_kernel()
+    if kernel is None:
+        pytest.skip(f"{reason}; build it with `python -m moegs.render._cpu build`")
 
 
 @pytest.fixture(params=["torch", "cpu"])
