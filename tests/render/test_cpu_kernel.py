@@ -139,7 +139,7 @@ def test_matches_torch_reference(case):
 def test_scene_exercises_clamp_and_early_termination():
     """The opaque scene really hits the ALPHA_MAX clamp and finishes pixels (T below T_MIN)."""
     scene = make_scene(3000, 128, 96, 3, 1, opaque=0.5)
-    image, alpha, _ = _composite(**scene)
+    _, alpha, _ = _cpu.composite(**scene)  # equal to the reference (test above); cheaper
     assert alpha.max() > 1 - 2e-4  # some pixel reached T ~ T_MIN: later Gaussians were not composited
     d = scene["means2d"] - (scene["means2d"].floor() + 0.5)  # offset from the nearest pixel centre
     a, b, c = scene["conics"].unbind(1)
