@@ -20,9 +20,13 @@ scale = √(mean squared distance to the 3 nearest neighbours) (``simple_knn.dis
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
+
 import torch
 from torch import Tensor, nn
 
+from moegs.data.points import initial_scales
 from moegs.data.scene import PointCloud
 from moegs.gaussians import GaussianFrame
 from moegs.render.projection import SH_C0
@@ -64,8 +68,6 @@ def init_splats(
     Returns:
         ``ParameterDict`` with the keys of ``SPLAT_KEYS`` plus those of ``extra``.
     """
-    from moegs.data.points import knn_mean_distance
-
     if not 0.0 < init_opacity < 1.0:
         raise ValueError(f"init_opacity must be in (0, 1), got {init_opacity}")
     if init_scale <= 0:
@@ -74,10 +76,9 @@ def init_splats(
         raise ValueError(f"init_splats needs at least 2 points for the nearest-neighbour scale, got {len(points)}")
     xyz = points.xyz.to(torch.float32)
     n = xyz.shape[0]
-    dist = knn_mean_distance(xyz, k=3)  # [P]
     params = {
         "means": xyz.clone(),
-        "scales": torch.log(dist * init_scale)[:, None].repeat(1, 3),
+        "scales": initial_scales(xyz) + math.log(init_scale),
         "quats": torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(n, 1),
         "opacities": torch.logit(torch.full((n,), init_opacity)),
         "sh0": rgb_to_sh0(points.rgb.to(torch.float32))[:, None, :],
@@ -92,7 +93,7 @@ def init_splats(
     return nn.ParameterDict({k: nn.Parameter(v) for k, v in params.items()})
 
 
-def sh_coeffs(splats: nn.ParameterDict, active_sh_degree: int) -> Tensor:
+def sh_coeffs(splats: Mapping[str, Tensor], active_sh_degree: int) -> Tensor:
     """``[N, (active_sh_degree + 1)², 3]``: DC and the active higher bands."""
     max_degree = int(round((1 + splats["shN"].shape[1]) ** 0.5)) - 1
     if not 0 <= active_sh_degree <= max_degree:
@@ -100,7 +101,7 @@ def sh_coeffs(splats: nn.ParameterDict, active_sh_degree: int) -> Tensor:
     return torch.cat([splats["sh0"], splats["shN"][:, : num_sh_bases(active_sh_degree) - 1]], dim=1)
 
 
-def activate(splats: nn.ParameterDict, active_sh_degree: int, **overrides: Tensor) -> GaussianFrame:
+def activate(splats: Mapping[str, Tensor], active_sh_degree: int, **overrides: Tensor) -> GaussianFrame:
     """The activated ``GaussianFrame`` of raw 3DGS parameters.
 
     ``overrides`` replace activated fields (``means``, ``quats``, ``scales``, ``opacities``, ``sh``) with

@@ -83,10 +83,10 @@ class ADCStrategy(Strategy):
                 raise RuntimeError("ADCStrategy: means2d has no gradient; render with return_stats=True "
                                    "and call step_post_backward after loss.backward()")
             visible = r["visible"]
-            ndc = means2d.grad[visible] * means2d.new_tensor([r["width"] / 2.0, r["height"] / 2.0]) * len(renders)
-            state["grad2d"][visible] += ndc.norm(dim=-1)
-            state["count"][visible] += 1
-            state["max_radii"][visible] = torch.maximum(state["max_radii"][visible], r["radii"][visible].float())
+            ndc = means2d.grad * means2d.new_tensor([r["width"] / 2.0, r["height"] / 2.0]) * len(renders)
+            state["grad2d"] += torch.where(visible, ndc.norm(dim=-1), 0.0)
+            state["count"] += visible
+            state["max_radii"] = torch.maximum(state["max_radii"], torch.where(visible, r["radii"].float(), 0.0))
 
     # -- refinement -------------------------------------------------------------------------------
     @torch.no_grad()

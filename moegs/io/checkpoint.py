@@ -1,0 +1,98 @@
+"""Checkpoint files: one safetensors file holding every tensor of a nested state, with the rest of
+the state (numbers, strings, lists, dicts) as JSON in the file's metadata.
+
+A state is a tree of dicts (string or int keys) and lists whose leaves are tensors or JSON values.
+Tensors are stored under their path (``"optim/means/state/0/exp_avg"``) and replaced in the JSON by
+``{"__tensor__": path}``. Writes are atomic (temporary file + ``os.replace``), so an interrupted
+write never damages the previous checkpoint.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import safe_open
+from safetensors.torch import save_file
+from torch import Tensor
+
+_META_KEY = "moegs"
+_TENSOR = "__tensor__"
+_INT_KEYS = "__int_keys__"
+
+
+def _split(tree: Any, path: str, tensors: dict[str, Tensor]) -> Any:
+    if isinstance(tree, Tensor):
+        tensors[path] = tree.detach().cpu().contiguous().clone()
+        return {_TENSOR: path}
+    if isinstance(tree, dict):
+        keys = list(tree)
+        if any(not isinstance(k, str | int) or isinstance(k, bool) for k in keys):
+            raise TypeError(f"checkpoint: keys at {path or '/'} must be str or int, got {keys}")
+        out = {str(k): _split(v, f"{path}/{k}" if path else str(k), tensors) for k, v in tree.items()}
+        int_keys = [str(k) for k in keys if isinstance(k, int)]
+        if int_keys:
+            out[_INT_KEYS] = int_keys
+        return out
+    if isinstance(tree, list | tuple):
+        return [_split(v, f"{path}/{i}", tensors) for i, v in enumerate(tree)]
+    if tree is None or isinstance(tree, bool | int | float | str):
+        return tree
+    raise TypeError(f"checkpoint: cannot store {type(tree).__name__} at {path or '/'}")
+
+
+def _join(tree: Any, tensors: dict[str, Tensor]) -> Any:
+    if isinstance(tree, dict):
+        if set(tree) == {_TENSOR}:
+            return tensors[tree[_TENSOR]]
+        int_keys = set(tree.get(_INT_KEYS, ()))
+        return {int(k) if k in int_keys else k: _join(v, tensors) for k, v in tree.items() if k != _INT_KEYS}
+    if isinstance(tree, list):
+        return [_join(v, tensors) for v in tree]
+    return tree
+
+
+def save_checkpoint(path: str | Path, state: dict) -> Path:
+    """Write ``state`` atomically to ``path`` (``.safetensors``); returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tensors: dict[str, Tensor] = {}
+    meta = json.dumps(_split(state, "", tensors), allow_nan=False)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        save_file(tensors, tmp, metadata={_META_KEY: meta})
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dict:
+    """Read a file written by :func:`save_checkpoint`; tensors land on ``device``."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint {path} does not exist")
+    with safe_open(str(path), framework="pt", device=str(device)) as f:
+        meta = (f.metadata() or {}).get(_META_KEY)
+        if meta is None:
+            raise ValueError(f"{path} is a safetensors file but not a moegs checkpoint (no '{_META_KEY}' metadata)")
+        tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118 - safe_open has no iterator
+    return _join(json.loads(meta), tensors)
+
+
+def write_json(path: str | Path, value: Any) -> Path:
+    """Write ``value`` as indented JSON atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        json.dump(value, f, indent=2, allow_nan=True)
+        f.write("\n")
+    os.replace(tmp, path)
+    return path

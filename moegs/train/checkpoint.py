@@ -1,0 +1,76 @@
+"""Training checkpoints: everything needed to resume bit-exactly, and to reload a trained expert.
+
+A checkpoint (``moegs.io.save_checkpoint`` file) holds::
+
+    step, expert {name, config}, model (expert.state_dict()), optimizers, strategy_state,
+    sampler, rng {torch}, history (loss per step)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from moegs.data.scene import Scene
+from moegs.experts import get_expert_class
+from moegs.experts.base import Expert
+from moegs.io import from_dict, load_checkpoint, to_dict
+
+CHECKPOINT_NAME = "checkpoint.safetensors"
+FORMAT = 1
+
+
+def training_state(expert: Expert, step: int, optimizers: dict, strategy_state: dict, sampler: dict,
+                   history: list[float]) -> dict[str, Any]:
+    """The state tree saved by the training loop after iteration ``step``."""
+    return {
+        "format": FORMAT,
+        "step": step,
+        "expert": {"name": expert.name, "config": to_dict(expert.config)},
+        "model": dict(expert.state_dict()),
+        "optimizers": optimizers,
+        "strategy_state": strategy_state,
+        "sampler": sampler,
+        "rng": {"torch": torch.get_rng_state()},
+        "history": list(history),
+    }
+
+
+def restore_model(expert: Expert, model: dict[str, torch.Tensor]) -> None:
+    """Load ``model`` into ``expert``, first resizing ``splats`` to the saved number of Gaussians."""
+    for key, param in list(expert.splats.items()):
+        saved = model.get(f"splats.{key}")
+        if saved is None:
+            raise KeyError(f"checkpoint has no 'splats.{key}'; it was written by another expert version")
+        expert.splats[key] = nn.Parameter(saved.to(param.device, param.dtype).clone(),
+                                          requires_grad=param.requires_grad)
+    expert.load_state_dict(model, strict=True)
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Load a checkpoint file and check its format."""
+    state = load_checkpoint(path)
+    if state.get("format") != FORMAT:
+        raise ValueError(f"{path}: checkpoint format {state.get('format')!r}, this moegs reads {FORMAT}")
+    return state
+
+
+def load_expert(path: str | Path, scene: Scene) -> tuple[Expert, dict[str, Any]]:
+    """Rebuild the trained expert saved at ``path`` (a checkpoint file or its run folder) for ``scene``.
+
+    Returns:
+        the expert in eval mode (stage and SH degree of its last step) and the checkpoint state.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / CHECKPOINT_NAME
+    state = read_checkpoint(path)
+    cls = get_expert_class(state["expert"]["name"])
+    config = from_dict(cls.config_class, state["expert"]["config"])
+    expert = cls.from_scene(scene, config)
+    restore_model(expert, state["model"])
+    expert.on_step(state["step"])
+    return expert.eval(), state

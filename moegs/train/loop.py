@@ -1,0 +1,222 @@
+"""The one training loop shared by every expert.
+
+Per 1-based iteration ``step`` (3DGS ``iteration``)::
+
+    expert.on_step(step)                   # stage switch -> fresh optimisers from param_groups()
+    lr = schedules(step)
+    views = one batch per view group       # ViewSampler
+    loss = mean over views of photometric(render, gt) + expert.regularization(step, frame)
+    strategy.step_pre_backward ; loss.backward() ; strategy.step_post_backward   # 3DGS densifies here
+    optimiser step (skipped at the last iteration, as in 3DGS ``if iteration < opt.iterations``)
+    strategy.step_post_optimizer           # 3DGS-MCMC noise
+    NaN/Inf checks, checkpoint, evaluation
+
+Example::
+
+    >>> expert = get_expert_class("static").from_scene(scene, StaticConfig.from_preset("quick"))
+    >>> result = train(expert, scene, out_dir="runs/static-mutant")
+    >>> result["test"]["psnr"]
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+from tqdm.auto import tqdm
+
+from moegs.data.scene import Scene
+from moegs.experts.base import Expert
+from moegs.io import save_checkpoint, to_dict, write_json
+from moegs.train.checkpoint import CHECKPOINT_NAME, read_checkpoint, restore_model, training_state
+from moegs.train.config import TrainConfig
+from moegs.train.evaluate import eval_views, evaluate, render_view
+from moegs.train.losses import photometric
+from moegs.train.optim import Optimizers
+from moegs.train.sampler import ViewSampler
+
+
+class NonFiniteError(FloatingPointError):
+    """Training produced NaN/Inf; the message names the step, the tensor and the last good checkpoint."""
+
+
+def _check_finite(step: int, what: str, tensors: dict[str, torch.Tensor | None], last_good: str) -> None:
+    """Raise ``NonFiniteError`` naming the first tensor holding NaN/Inf (one fused test when all are finite)."""
+    present = {k: v for k, v in tensors.items() if v is not None and v.is_floating_point()}
+    if not present or torch.stack([v.detach().sum().float() for v in present.values()]).isfinite().all():
+        return  # a finite sum of finite values; NaN/Inf (or an overflowing sum) goes on to the exact test
+    for name, value in present.items():
+        if not torch.isfinite(value).all():
+            bad = int((~torch.isfinite(value)).sum())
+            raise NonFiniteError(f"step {step}: {what} {name} has {bad} NaN/Inf value(s) of {value.numel()}; "
+                                 f"training stopped. {last_good}")
+
+
+class _Run:
+    """Mutable training state of one call to :func:`train`."""
+
+    def __init__(self, expert: Expert, scene: Scene, config: TrainConfig) -> None:
+        self.expert, self.scene, self.config = expert, scene, config
+        self.strategy = expert.strategy()
+        self.optimizers = Optimizers(expert.param_groups())
+        white = bool((scene.background >= 1.0).all())
+        self.strategy_state = self.strategy.initialize_state(scene.extent, white) if self.strategy else {}
+        groups = expert.view_groups(scene.train) or [0] * len(scene.train)
+        self.sampler = ViewSampler(groups, config.batch_size, config.seed)
+        self.step = 0
+        self.history: list[float] = []
+        self.saved_step: int | None = None
+        self.last_good = "No checkpoint was written yet."
+
+    def splat_optimizers(self) -> dict:
+        return self.optimizers.for_splats(self.expert.splats)
+
+    # -- checkpoints ------------------------------------------------------------------------------
+    def save(self, path: Path) -> None:
+        save_checkpoint(path, training_state(self.expert, self.step, self.optimizers.state_dict(),
+                                             self.strategy_state, self.sampler.state_dict(), self.history))
+        self.saved_step = self.step
+        self.last_good = f"Last good checkpoint: {path} (step {self.step})."
+
+    def resume(self, path: Path) -> None:
+        state = read_checkpoint(path)
+        if state["expert"]["name"] != self.expert.name:
+            raise ValueError(f"{path} holds a {state['expert']['name']!r} run, not {self.expert.name!r}")
+        if state["expert"]["config"] != to_dict(self.expert.config):
+            raise ValueError(f"{path} was written with another config; use a new out_dir or resume=False")
+        restore_model(self.expert, state["model"])
+        self.step = state["step"]
+        self.expert.on_step(self.step)  # replays the stage of the last finished step
+        self.optimizers = Optimizers(self.expert.param_groups())
+        self.optimizers.load_state_dict(state["optimizers"])
+        self.strategy_state = state["strategy_state"]
+        self.sampler.load_state_dict(state["sampler"])
+        torch.set_rng_state(state["rng"]["torch"])
+        self.history = list(state["history"])
+        self.saved_step = self.step
+        self.last_good = f"Last good checkpoint: {path} (step {self.step})."
+
+    # -- one iteration ----------------------------------------------------------------------------
+    def iteration(self, step: int) -> float:
+        expert, config, strategy = self.expert, self.config, self.strategy
+        if expert.on_step(step):
+            self.optimizers = Optimizers(expert.param_groups())
+        self.optimizers.set_step(step)
+        views = [self.scene.train[i] for i in self.sampler.next()]
+        splat_opts = self.splat_optimizers() if strategy else {}
+        info: dict[str, Any] = {"renders": []}
+        if strategy:
+            strategy.step_pre_backward(expert.splats, splat_opts, self.strategy_state, step, info)
+
+        needs_stats = bool(strategy and strategy.needs_render_stats)
+        loss = 0.0
+        for view in views:
+            cam = view.camera
+            rgb, out, frame = render_view(expert, cam, self.scene.background, config.backend, needs_stats)
+            view_loss = photometric(rgb, view.image(), config.lambda_dssim) + expert.regularization(step, frame)
+            _check_finite(step, "loss of view", {view.key: view_loss.detach()}, self.last_good)
+            loss = loss + view_loss
+            if needs_stats:
+                info["renders"].append({**{k: out.info[k] for k in ("radii", "visible", "means2d")},
+                                        "width": cam.width, "height": cam.height})
+        loss = loss / len(views)
+        loss.backward()
+        _check_finite(step, "gradient of", {n: p.grad for n, p in expert.named_parameters()}, self.last_good)
+
+        if strategy:
+            strategy.step_post_backward(expert.splats, splat_opts, self.strategy_state, step, info)
+        if step < config.iterations:
+            self.optimizers.step()
+            if strategy:
+                strategy.step_post_optimizer(expert.splats, self.splat_optimizers(), self.strategy_state, step, info)
+        self.optimizers.zero_grad()
+        _check_finite(step, "parameter", dict(expert.named_parameters()), self.last_good)
+        return float(loss.detach())
+
+
+def train(
+    expert: Expert,
+    scene: Scene,
+    config: TrainConfig | None = None,
+    out_dir: str | Path | None = None,
+    *,
+    resume: bool = True,
+    progress: bool = True,
+    stop_after: int | None = None,
+) -> dict[str, Any]:
+    """Train ``expert`` on ``scene`` and evaluate it on the test views.
+
+    Args:
+        expert: a freshly built expert (``from_scene``); trained in place.
+        scene: the scene it was built for.
+        config: training settings; default ``expert.config.train``.
+        out_dir: where ``checkpoint.safetensors``, ``config.json`` and ``metrics.json`` go (None: keep
+            nothing on disk).
+        resume: continue from ``out_dir``'s checkpoint when there is one (params, optimiser, strategy
+            and sampler state, RNG, step).
+        progress: show a tqdm bar.
+        stop_after: stop (with a checkpoint) after this iteration, as if interrupted; schedules still
+            run to ``config.iterations``.
+
+    Returns:
+        ``{"expert", "scene", "stand_in", "completed", "step", "iterations", "num_gaussians",
+        "train_seconds", "seconds_per_step", "final_loss", "resumed_from", "test" (see
+        ``evaluate``; None when stopped early), "evaluations" (periodic test PSNRs)}``.
+
+    Raises:
+        NonFiniteError: on NaN/Inf in a loss, gradient or parameter; the last checkpoint is kept.
+    """
+    config = config or expert.config.train
+    out = Path(out_dir) if out_dir is not None else None
+    ckpt = out / CHECKPOINT_NAME if out is not None else None
+    run = _Run(expert, scene, config)
+    torch.manual_seed(config.seed)
+    resumed_from = None
+    if resume and ckpt is not None and ckpt.is_file():
+        run.resume(ckpt)
+        resumed_from = run.step
+    if out is not None:
+        write_json(out / "config.json", {"expert": expert.name, "scene": scene.name, "stand_in": scene.stand_in,
+                                         "config": to_dict(expert.config), "train": to_dict(config)})
+
+    last = config.iterations if stop_after is None else min(stop_after, config.iterations)
+    test_views = eval_views(scene.test, config.max_eval_views)
+    evaluations, seconds = [], 0.0
+    expert.train()
+    bar = tqdm(range(run.step + 1, last + 1), initial=run.step, total=config.iterations, disable=not progress,
+               desc=f"{expert.name} on {scene.name}", dynamic_ncols=True)
+    for step in bar:
+        start = time.perf_counter()
+        run.history.append(run.iteration(step))
+        run.step = step
+        seconds += time.perf_counter() - start
+        if step % config.log_every == 0:
+            bar.set_postfix(loss=f"{run.history[-1]:.4f}", gaussians=expert.num_gaussians)
+        if ckpt is not None and config.checkpoint_every and step % config.checkpoint_every == 0:
+            run.save(ckpt)
+        if config.eval_every and step % config.eval_every == 0 and step < config.iterations and test_views:
+            evaluations.append({"step": step, "psnr": evaluate(expert, test_views, scene.background,
+                                                               config.metric_profile, config.backend)["psnr"]})
+            expert.train()
+    bar.close()
+    if ckpt is not None and run.saved_step != run.step:
+        run.save(ckpt)
+
+    completed = run.step >= config.iterations
+    expert.eval()
+    test = None
+    if completed and test_views:
+        test = evaluate(expert, test_views, scene.background, config.metric_profile, config.backend)
+    steps_run = last - (resumed_from or 0)
+    result = {
+        "expert": expert.name, "scene": scene.name, "stand_in": scene.stand_in, "completed": completed,
+        "step": run.step, "iterations": config.iterations, "num_gaussians": expert.num_gaussians,
+        "train_seconds": seconds, "seconds_per_step": seconds / steps_run if steps_run > 0 else None,
+        "final_loss": run.history[-1] if run.history else None, "resumed_from": resumed_from,
+        "test": test, "evaluations": evaluations,
+    }
+    if out is not None:
+        write_json(out / "metrics.json", result)
+    return result
