@@ -26,6 +26,8 @@ import pandas as pd
 
 _REPO = Path(__file__).resolve().parent.parent
 PAPER_TABLES_DIR = _REPO / "tables" / "paper"
+#: Numbers the paper prints in its text rather than in a table (same schema plus ``source_sentence``).
+PAPER_TEXT_DIR = PAPER_TABLES_DIR / "text"
 #: Columns of :meth:`PaperTable.frame`, in order.
 FRAME_COLUMNS = ("row", "column", "metric", "value", "printed", "unit", "higher_is_better", "marked")
 
@@ -92,6 +94,24 @@ def load_paper_table(table_id: str) -> PaperTable:
     _check_key("table id", table_id, list_paper_tables(), "tables/paper")
     data = json.loads((PAPER_TABLES_DIR / f"{table_id}.json").read_text(encoding="utf-8"))
     return PaperTable(**data)
+
+
+def list_paper_texts() -> list[str]:
+    """Ids of the in-text number sets (``tables/paper/text/*.json``), e.g. ``["static_roi"]``."""
+    return sorted(p.stem for p in PAPER_TEXT_DIR.glob("*.json"))
+
+
+def load_paper_text(text_id: str) -> PaperTable:
+    """Load ``tables/paper/text/<text_id>.json`` (numbers printed in the paper's text) as a ``PaperTable``."""
+    _check_key("text id", text_id, list_paper_texts(), "tables/paper/text")
+    data = json.loads((PAPER_TEXT_DIR / f"{text_id}.json").read_text(encoding="utf-8"))
+    data.pop("source_sentence", None)
+    return PaperTable(**data)
+
+
+def load_paper_numbers(source_id: str) -> PaperTable:
+    """A table (``tab03``) or an in-text number set (``static_roi``) by id."""
+    return load_paper_table(source_id) if source_id in list_paper_tables() else load_paper_text(source_id)
 
 
 def paper_value(table: str | PaperTable, row: str, column: str, metric: str | None = None) -> Any:

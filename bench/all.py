@@ -1,0 +1,206 @@
+"""Reproduce the paper's tables and figures: ``python -m bench.all [--quick] [--tables 3,17] [--jobs N]``.
+
+Steps: plan the selected specs (rows x scenes x seeds), build the missing artefacts and evaluate the
+missing cells (local process pool or Slurm via submitit; finished work is reused), then write
+``tables/<id>.tex``, ``reports/figures/*.png`` for the selected specs and ``reports/REPORT.{md,html}``
+plus ``reports/summary.json`` for every spec (those not run show as pending).
+
+``--tables`` accepts ``tab03``, ``3``, ``III``, ``repro-tab3`` (tox env names) and figure ids;
+``python -m bench.tab03`` is the same as ``--tables tab03``. The preset is ``--preset`` / ``--quick``,
+else ``$MOEGS_PRESET``, else ``paper``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+from bench.keys import REPO
+from bench.presets import PRESET_ENV, PRESETS, default_preset, get_preset
+from bench.registry import get_spec, list_specs, parse_selection
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m bench.all",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "--tables",
+        nargs="*",
+        metavar="ID",
+        help="tables/figures to run (default: all), e.g. 3,17 tab03 repro-tab3 fig_mdc",
+    )
+    p.add_argument(
+        "--preset",
+        choices=sorted(PRESETS),
+        default=None,
+        help=f"scale preset (default: ${PRESET_ENV} or 'paper'; now {default_preset()!r})",
+    )
+    p.add_argument("--quick", action="store_true", help="same as --preset quick")
+    p.add_argument(
+        "--executor",
+        choices=["local", "slurm", "submitit-local"],
+        default="local",
+        help="local process pool (default), Slurm via submitit, or submitit's local executor",
+    )
+    p.add_argument(
+        "--jobs",
+        type=int,
+        default=max(1, (os.cpu_count() or 1) // 2) or 1,
+        help="parallel tasks for the local executor",
+    )
+    p.add_argument("--timeout", type=float, default=None, help="seconds per task (local executor)")
+    p.add_argument(
+        "--workspace",
+        type=Path,
+        default=None,
+        help="results, checkpoints and logs (default: $MOEGS_BENCH_DIR or runs/bench)",
+    )
+    p.add_argument("--out", type=Path, default=REPO, help="where tables/ and reports/ go (default: the repo)")
+    p.add_argument("--no-run", action="store_true", help="only rebuild tables, plots and report from results")
+    p.add_argument("--list", action="store_true", help="list the specs and exit (no torch import)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("--slurm-partition", default=None)
+    p.add_argument("--slurm-time", type=int, default=240, help="minutes per task on Slurm")
+    p.add_argument("--slurm-gpus", type=int, default=None, help="GPUs per task on Slurm")
+    p.add_argument("--slurm-cpus", type=int, default=None, help="CPUs per task on Slurm")
+    return p
+
+
+def list_table() -> str:
+    rows = []
+    for sid in list_specs():
+        spec = get_spec(sid)
+        rows.append(
+            f"{sid:18s} {spec.dataset or '-':12s} {spec.axis:8s} {len(spec.rows):2d} rows  {spec.title}"
+        )
+    return "\n".join(rows)
+
+
+def _executor(args: argparse.Namespace):
+    from bench.executors import make_executor
+
+    params = {"timeout_min": args.slurm_time}
+    if args.slurm_partition:
+        params["slurm_partition"] = args.slurm_partition
+    if args.slurm_gpus is not None:
+        params["gpus_per_node"] = args.slurm_gpus
+    if args.slurm_cpus is not None:
+        params["cpus_per_task"] = args.slurm_cpus
+    return make_executor(
+        args.executor, jobs=args.jobs, timeout=args.timeout, parameters=params, threads=args.slurm_cpus
+    )
+
+
+def write_outputs(plan, workspace, selected: list[str], out: Path, run: dict | None = None) -> dict:
+    """Tables and plots for ``selected``, the report for every spec of ``plan``."""
+    from bench.latex import write_index, write_table
+    from bench.plots import plot_spec
+    from bench.report import spec_report, write_report
+    from bench.values import SpecValues
+
+    tables_dir, reports_dir = out / "tables", out / "reports"
+    reports, written = [], []
+    header = f"preset {plan.preset.name}, generated {time.strftime('%Y-%m-%d %H:%M')}"
+    for sp in plan.specs:
+        values = SpecValues(sp, workspace)
+        latex, figures = None, []
+        if sp.spec.id in selected:
+            if not sp.spec.figure:
+                latex = write_table(values, plan.preset, tables_dir, header)
+                written.append(latex)
+            figures = plot_spec(values, reports_dir / "figures")
+        else:  # keep figures of earlier runs in the report
+            figures = sorted((reports_dir / "figures").glob(f"{sp.spec.id}_*.png")) + sorted(
+                (reports_dir / "figures").glob(f"{sp.spec.id}.png")
+            )
+            old = tables_dir / f"{sp.spec.id}.tex"
+            latex = old if old.is_file() else None
+        reports.append(spec_report(values, plan.preset, latex, figures))
+    all_tex = sorted(p for p in tables_dir.glob("*.tex") if p.name != "all.tex")
+    if all_tex:
+        write_index(all_tex, tables_dir)
+    paths = write_report(reports, plan.preset, reports_dir, run)
+    return {"reports": reports, "paths": paths, "tables": written}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.list:
+        print(list_table())
+        return 0
+    try:
+        selected = parse_selection(args.tables)
+    except KeyError as err:
+        print(f"error: {err.args[0]}", file=sys.stderr)
+        return 2
+    preset = get_preset("quick" if args.quick else args.preset)
+
+    from dataclasses import asdict
+
+    from bench.plan import make_plan
+    from bench.runner import execute
+    from bench.store import Workspace
+
+    workspace = Workspace(args.workspace)
+    start = time.perf_counter()
+    plan = make_plan(list_specs(), preset)
+    run_plan = type(plan)(preset, [sp for sp in plan.specs if sp.spec.id in selected])
+    n_eval = len(run_plan.eval_tasks())
+    n_build = sum(len(level) for level in run_plan.build_levels())
+    print(
+        f"[bench] preset {preset.name}; {len(selected)} spec(s); {n_build} build task(s), {n_eval} eval "
+        f"task(s); workspace {workspace.root}",
+        file=sys.stderr,
+    )
+    run = None
+    if not args.no_run:
+        summary = execute(run_plan, workspace, _executor(args), progress=not args.no_progress)
+        run = {
+            **{k: v for k, v in asdict(summary).items() if k != "failures"},
+            "failures": [
+                {"task": o.task.slug, "log": str(o.log), "error": o.error} for o in summary.failures
+            ],
+        }
+    outputs = write_outputs(plan, workspace, selected, args.out, run)
+    elapsed = time.perf_counter() - start
+    _print_summary(outputs["reports"], selected, outputs["paths"], elapsed)
+    if run and run["failures"]:
+        print(
+            f"[bench] {len(run['failures'])} task(s) failed; see the logs above and the report",
+            file=sys.stderr,
+        )
+        return 1
+    return 0
+
+
+def _print_summary(reports, selected, paths, elapsed: float) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"moegs bench ({elapsed:.0f} s)", show_lines=False)
+    for col in ("id", "status", "claims held/failed/n.a."):
+        table.add_column(col, overflow="fold")
+    for rep in reports:
+        if rep.id not in selected:
+            continue
+        held = sum(c["ours"] == "held" for c in rep.claims)
+        failed = sum(c["ours"] == "failed" for c in rep.claims)
+        table.add_row(rep.id, rep.status, f"{held}/{failed}/{len(rep.claims) - held - failed}")
+    console = Console(stderr=True)
+    console.print(table)
+    console.print(f"report: {paths['md']}  (html: {paths['html']})")
+
+
+def main_for(spec_id: str) -> None:
+    """Entry point of ``python -m bench.tabNN [options]``."""
+    sys.exit(main(["--tables", spec_id, *sys.argv[1:]]))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

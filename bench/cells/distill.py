@@ -1,0 +1,78 @@
+"""Kind ``distill``: an expert trained from scratch under MoE-GS supervision (KD loss).
+
+Params: ``student`` (expert name), ``teacher`` (the MoE-GS expert set), ``router``, ``weighted``
+(True: the routing-weighted KD loss, "Distilled (Ours)"; False: "w/o Weight").
+
+Library API this kind calls (until it exists, cells report "not implemented yet: <name>"):
+
+* ``moegs.moe.DistillConfig.from_preset(name)``: dataclass with ``iterations``, ``weighted``, ``seed``;
+* ``moegs.moe.distill(student, teacher, scene, config, out_dir, progress=False) -> {"train_seconds"}``,
+  writing a checkpoint that ``moegs.train.checkpoint.load_expert`` reads.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from bench.cells import expert as expert_kind
+from bench.cells import module_missing
+from bench.cells import moe as moe_kind
+from bench.cells._eval import evaluate_renderer, module_megabytes
+from bench.cells._lib import expert_renderer, load_trained_expert, train_hours
+from bench.tasks import Task
+
+DISTILL_API = ("moegs.moe:DistillConfig", "moegs.moe:distill")
+
+
+def missing(params: dict) -> list[str]:
+    out = moe_kind.missing({"experts": params["teacher"], "router": params.get("router", "vapr")})
+    out += expert_kind.missing({"expert": params["student"]})
+    return out + [m for m in map(module_missing, DISTILL_API) if m]
+
+
+def _teacher(task: Task) -> Task:
+    return moe_kind.router_task(task, task.params["teacher"], task.params.get("router", "vapr"))
+
+
+def artifacts(task: Task) -> list[Task]:
+    return [task.derive("build", "distill", dict(task.params))]
+
+
+def deps(task: Task) -> list[Task]:
+    return [_teacher(task)]
+
+
+def build(task: Task, ctx: Any, out: Path) -> dict[str, Any]:
+    import torch
+
+    from moegs.experts import get_expert_class
+    from moegs.moe import DistillConfig, distill
+
+    scene = ctx.scene(task)
+    teacher = moe_kind.load_model(ctx, _teacher(task))
+    cls = get_expert_class(task.params["student"])
+    student_cfg = expert_kind.train_config(cls, ctx, task.derive("build", "expert", {"expert": cls.name}))
+    torch.manual_seed(task.seed)
+    student = cls.from_scene(scene, student_cfg)
+    cfg = DistillConfig.from_preset(ctx.preset.expert_preset)
+    cfg = replace(
+        cfg,
+        weighted=bool(task.params["weighted"]),
+        seed=task.seed,
+        iterations=ctx.preset.steps(cfg.iterations, ctx.preset.distill_steps),
+    )
+    result = distill(student, teacher, scene, cfg, out, progress=ctx.progress)
+    return {"train_seconds": result.get("train_seconds")}
+
+
+def run(task: Task, ctx: Any) -> dict[str, Any]:
+    scene = ctx.scene(task)
+    build_task = artifacts(task)[0]
+    student = load_trained_expert(ctx, build_task)
+    out = evaluate_renderer(expert_renderer(student, scene.background), scene, ctx.preset)
+    out["metrics"]["memory_mb"] = module_megabytes(student)
+    out["metrics"]["train_time_h"] = train_hours(ctx, [build_task])
+    out["details"]["num_gaussians"] = student.num_gaussians
+    return out

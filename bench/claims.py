@@ -1,0 +1,235 @@
+"""Checks for the paper's qualitative claims, run on our values and on the paper's own numbers.
+
+Every check takes a *values view* ``v`` (``bench.values.ValuesView``: ``get(row, column, metric)``,
+``columns(selector)``) and keyword arguments from ``Claim.args``; it returns a ``ClaimResult``.
+Column selectors: ``"@mean"`` (the dataset average: the paper's ``Average`` column, our mean over
+computed scenes), ``"@scenes"`` (every scene column that has values), or a list of printed columns.
+``better`` respects each metric's direction (LPIPS, MDC: lower is better).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from bench.spec import Claim, metric
+
+HELD, FAILED, NA = "held", "failed", "n/a"
+
+
+class ValuesView(Protocol):
+    def get(self, row: str, column: str, metric: str) -> float | None: ...
+
+    def columns(self, selector: str | Sequence[str]) -> list[str]: ...
+
+
+@dataclass(frozen=True)
+class ClaimResult:
+    status: str  # "held" | "failed" | "n/a"
+    detail: str
+
+    @property
+    def held(self) -> bool:
+        return self.status == HELD
+
+
+def _fmt(x: float | None) -> str:
+    return "—" if x is None else f"{x:.4g}"
+
+
+def _is_better(x: float, y: float, metric_name: str, strict: bool, margin: float) -> bool:
+    if not metric(metric_name).higher_is_better:
+        x, y = -x, -y
+    return x - y > margin if strict else x - y >= -margin
+
+
+def better(
+    v: ValuesView,
+    a: str,
+    b: str | Sequence[str],
+    metric: str = "PSNR",
+    columns: str | Sequence[str] = "@mean",
+    strict: bool = True,
+    margin: float = 0.0,
+) -> ClaimResult:
+    """Row ``a`` is better than row ``b`` (or every row of a list) on every selected column."""
+    others = [b] if isinstance(b, str) else list(b)
+    checked, lost = [], []
+    for col in v.columns(columns):
+        x = v.get(a, col, metric)
+        for o in others:
+            y = v.get(o, col, metric)
+            if x is None or y is None:
+                continue
+            checked.append(f"{col}: {_fmt(x)} vs {o} {_fmt(y)}")
+            if not _is_better(x, y, metric, strict, margin):
+                lost.append(checked[-1])
+    if not checked:
+        return ClaimResult(NA, f"no column where {a} and {others} both have {metric}")
+    if lost:
+        return ClaimResult(FAILED, f"{a} not better on " + "; ".join(lost))
+    return ClaimResult(
+        HELD,
+        f"{a} better on {len(checked)} comparison(s): "
+        + "; ".join(checked[:4])
+        + (" ..." if len(checked) > 4 else ""),
+    )
+
+
+def best(
+    v: ValuesView,
+    row: str,
+    among: Sequence[str],
+    metric: str = "PSNR",
+    columns: str | Sequence[str] = "@mean",
+    strict: bool = False,
+) -> ClaimResult:
+    """Row ``row`` is the best (ties allowed unless ``strict``) among ``among``."""
+    return better(v, row, [r for r in among if r != row], metric, columns, strict=strict)
+
+
+def order(
+    v: ValuesView,
+    rows: Sequence[str],
+    metric: str = "PSNR",
+    columns: str | Sequence[str] = "@mean",
+    strict: bool = True,
+) -> ClaimResult:
+    """``rows[0]`` better than ``rows[1]`` better than ... on every selected column."""
+    parts = [better(v, rows[i], rows[i + 1], metric, columns, strict) for i in range(len(rows) - 1)]
+    if any(p.status == NA for p in parts):
+        return ClaimResult(NA, "; ".join(p.detail for p in parts if p.status == NA))
+    status = HELD if all(p.held for p in parts) else FAILED
+    return ClaimResult(status, " | ".join(p.detail for p in parts))
+
+
+def monotone(
+    v: ValuesView, rows: Sequence[str], columns: Sequence[str], metric: str = "PSNR", tolerance: float = 0.0
+) -> ClaimResult:
+    """Along ``columns`` (in order) each row's value never gets better by more than ``tolerance``."""
+    bad, seen = [], 0
+    for row in rows:
+        vals = [(c, v.get(row, c, metric)) for c in columns]
+        vals = [(c, x) for c, x in vals if x is not None]
+        for (c0, x0), (c1, x1) in zip(vals, vals[1:], strict=False):
+            seen += 1
+            if _is_better(x1, x0, metric, strict=True, margin=tolerance):
+                bad.append(f"{row}: {c1} {_fmt(x1)} > {c0} {_fmt(x0)}")
+    if not seen:
+        return ClaimResult(NA, f"fewer than two of {list(columns)} computed")
+    return ClaimResult(FAILED if bad else HELD, "; ".join(bad) or f"{seen} step(s) non-increasing")
+
+
+def within(
+    v: ValuesView,
+    a: str,
+    b: str,
+    tolerance: float,
+    metric: str = "PSNR",
+    columns: str | Sequence[str] = "@mean",
+) -> ClaimResult:
+    """``|a - b| <= tolerance`` on every selected column (e.g. pruning keeps PSNR)."""
+    checked, bad = 0, []
+    for col in v.columns(columns):
+        x, y = v.get(a, col, metric), v.get(b, col, metric)
+        if x is None or y is None:
+            continue
+        checked += 1
+        if abs(x - y) > tolerance:
+            bad.append(f"{col}: |{_fmt(x)} - {_fmt(y)}| > {tolerance}")
+    if not checked:
+        return ClaimResult(NA, f"{a} / {b} have no common {metric}")
+    return ClaimResult(FAILED if bad else HELD, "; ".join(bad) or f"{a} within {tolerance} of {b}")
+
+
+def exceeds(
+    v: ValuesView, a: str, column_a: str, others: Sequence[str], column_b: str, metric: str = "PSNR"
+) -> ClaimResult:
+    """``a`` at ``column_a`` is better than each of ``others`` at ``column_b`` (MoE average > best run)."""
+    x = v.get(a, column_a, metric)
+    if x is None:
+        return ClaimResult(NA, f"{a} {column_a} not computed")
+    pairs = [(o, v.get(o, column_b, metric)) for o in others]
+    pairs = [(o, y) for o, y in pairs if y is not None]
+    if not pairs:
+        return ClaimResult(NA, f"none of {list(others)} has {column_b}")
+    bad = [f"{o} {column_b} {_fmt(y)}" for o, y in pairs if not _is_better(x, y, metric, True, 0.0)]
+    detail = f"{a} {column_a} {_fmt(x)} vs " + ", ".join(f"{o} {_fmt(y)}" for o, y in pairs)
+    return ClaimResult(FAILED if bad else HELD, detail)
+
+
+def spread(
+    v: ValuesView, a: str, others: Sequence[str], low: str = "Min", high: str = "Max", metric: str = "PSNR"
+) -> ClaimResult:
+    """Row ``a`` has a smaller ``high - low`` range than each of ``others`` (more stable)."""
+
+    def rng(row: str) -> float | None:
+        lo, hi = v.get(row, low, metric), v.get(row, high, metric)
+        return None if lo is None or hi is None else abs(hi - lo)
+
+    ra = rng(a)
+    pairs = [(o, rng(o)) for o in others]
+    pairs = [(o, r) for o, r in pairs if r is not None]
+    if ra is None or not pairs:
+        return ClaimResult(NA, "ranges not computed (needs at least two seeds)")
+    bad = [o for o, r in pairs if not ra < r]
+    detail = f"{a} range {_fmt(ra)} vs " + ", ".join(f"{o} {_fmt(r)}" for o, r in pairs)
+    return ClaimResult(FAILED if bad else HELD, detail)
+
+
+def at_least(
+    v: ValuesView,
+    rows: Sequence[str],
+    threshold: float,
+    metric: str,
+    columns: str | Sequence[str] = "@scenes",
+) -> ClaimResult:
+    """Every selected value of ``rows`` is at least ``threshold`` (e.g. two experts win pixels)."""
+    seen, bad = 0, []
+    for row in rows:
+        for col in v.columns(columns):
+            x = v.get(row, col, metric)
+            if x is None:
+                continue
+            seen += 1
+            if x < threshold:
+                bad.append(f"{row} {col}: {_fmt(x)} < {threshold}")
+    if not seen:
+        return ClaimResult(NA, f"{metric} not computed")
+    return ClaimResult(FAILED if bad else HELD, "; ".join(bad) or f"{seen} value(s) >= {threshold}")
+
+
+def differs_across(v: ValuesView, rows: Sequence[str], metric: str = "PSNR") -> ClaimResult:
+    """The best row is not the same on every scene column (no single method dominates)."""
+    winners = {}
+    for col in v.columns("@scenes"):
+        vals = {r: v.get(r, col, metric) for r in rows}
+        vals = {r: x for r, x in vals.items() if x is not None}
+        if len(vals) >= 2:
+            sign = 1 if metric_direction(metric) else -1
+            winners[col] = max(vals, key=lambda r: sign * vals[r])
+    if len(winners) < 2:
+        return ClaimResult(
+            NA, f"needs two or more scenes with {metric} for {list(rows)}; have {len(winners)}"
+        )
+    distinct = set(winners.values())
+    detail = ", ".join(f"{c}: {w}" for c, w in winners.items())
+    return ClaimResult(HELD if len(distinct) > 1 else FAILED, detail)
+
+
+def metric_direction(name: str) -> bool:
+    return metric(name).higher_is_better
+
+
+CHECKS: dict[str, Callable[..., ClaimResult]] = {
+    f.__name__: f for f in (better, best, order, monotone, within, exceeds, spread, at_least, differs_across)
+}
+
+
+def evaluate(claim: Claim, values: ValuesView) -> ClaimResult:
+    """Run one claim; a malformed claim is a programming error and raises."""
+    if claim.check not in CHECKS:
+        raise KeyError(f"claim {claim.id}: unknown check {claim.check!r}; valid: {', '.join(CHECKS)}")
+    args: dict[str, Any] = dict(claim.args)
+    return CHECKS[claim.check](values, **args)

@@ -1,0 +1,73 @@
+"""What a cell function gets: the workspace, the preset, scene loading and artefacts (built on demand).
+
+``Context.artifact(task)`` returns the folder of a built artefact; when it is not built yet (a table
+run alone, or a dependency that another worker is still building) it builds it here under the
+store's lock, recursively building what it depends on. Every artefact used is recorded with its
+checkpoint hashes so the result JSON can name exactly what it was computed from.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+from bench.cells import kind_module
+from bench.presets import BenchPreset, get_preset
+from bench.store import Workspace
+from bench.tasks import Task
+
+
+class Context:
+    """Per-process services for cell functions."""
+
+    def __init__(self, workspace: Workspace, preset: BenchPreset | str, progress: bool = False) -> None:
+        self.workspace = workspace
+        self.preset = get_preset(preset) if isinstance(preset, str) else preset
+        self.progress = progress
+        self.used: dict[str, dict[str, Any]] = {}
+        self.task: Task | None = None
+        """The task being run (set by the worker; cells write their files under its ``files_dir``)."""
+        self._scenes: dict[str, Any] = {}
+
+    def log(self, message: str) -> None:
+        print(f"[bench] {message}", file=sys.stderr, flush=True)
+
+    # ------------------------------------------------------------------ scenes
+    def scene(self, task: Task):
+        """The ``moegs.Scene`` of ``task`` (loaded once per process)."""
+        from bench.keys import canonical_json
+        from bench.scenes import load
+
+        key = task.scene + canonical_json(dict(task.scene_kwargs))
+        if key not in self._scenes:
+            self.log(f"loading scene {task.scene} {dict(task.scene_kwargs)}")
+            self._scenes[key] = load(task.scene, dict(task.scene_kwargs))
+        return self._scenes[key]
+
+    # ------------------------------------------------------------------ artefacts
+    def artifact(self, task: Task) -> Path:
+        """Folder of the built artefact ``task`` (building it and its dependencies if needed)."""
+        if task.action != "build":
+            raise ValueError(f"Context.artifact needs a build task, got {task}")
+        module = kind_module(task.kind)
+        for dep in getattr(module, "deps", lambda _t: [])(task):
+            self.artifact(dep)
+        if not self.workspace.is_built(task):
+            self.log(f"building {task.slug} ({task.key})")
+        folder = self.workspace.ensure(task, lambda out: module.build(task, self, out))
+        meta = self.workspace.artifact_meta(task)
+        self.used[task.key] = {
+            "kind": task.kind,
+            "params": dict(task.params),
+            "seed": task.seed,
+            "files": meta.get("files", {}),
+            "build_seconds": meta.get("build_seconds"),
+            "train_seconds": meta.get("train_seconds"),
+        }
+        return folder
+
+    def meta(self, task: Task) -> dict[str, Any]:
+        """``artifact.json`` of a built artefact (building it if needed)."""
+        self.artifact(task)
+        return self.workspace.artifact_meta(task)

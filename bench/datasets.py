@@ -1,0 +1,124 @@
+"""The paper's datasets as the harness sees them: printed scene names, loader names, protocol, stand-in.
+
+Stdlib only (no torch): listing tables never loads data. ``bench.scenes`` turns these into concrete
+scenes for a preset (real folder when present, synthetic stand-in otherwise).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """One benchmark dataset.
+
+    Attributes:
+        name: loader prefix in ``moegs.data.load_scene`` (``"n3v"`` -> ``"n3v:coffee_martini"``).
+        title: the paper's name for it.
+        scenes: printed column name -> loader scene name, in the paper's order. Several printed
+            spellings may map to one scene (Table XII prints "Cut Roast Beef").
+        stand_in: synthetic scene (``moegs.data.synthetic``) used when no real scene is present.
+        paper_protocol: loader keyword arguments of the paper's protocol (resolution, frame window).
+        multiview: several cameras per time step.
+    """
+
+    name: str
+    title: str
+    scenes: dict[str, str]
+    stand_in: str
+    paper_protocol: dict = field(default_factory=dict)
+    multiview: bool = True
+
+    def scene_names(self) -> list[str]:
+        """Distinct loader scene names in paper order."""
+        return list(dict.fromkeys(self.scenes.values()))
+
+    def column_of(self, scene: str) -> str:
+        """The first printed column name of a loader scene name."""
+        for column, name in self.scenes.items():
+            if name == scene:
+                return column
+        raise KeyError(f"{self.name}: unknown scene {scene!r}; scenes: {self.scene_names()}")
+
+
+DATASETS: dict[str, Dataset] = {
+    d.name: d
+    for d in (
+        Dataset(
+            "n3v",
+            "N3V (Neural 3D Video)",
+            {
+                "Coffee Martini": "coffee_martini",
+                "Cook Spinach": "cook_spinach",
+                "Cut Roasted Beef": "cut_roasted_beef",
+                "Cut Roast Beef": "cut_roasted_beef",
+                "Flame Salmon": "flame_salmon",
+                "Flame Steak": "flame_steak",
+                "Sear Steak": "sear_steak",
+            },
+            stand_in="n3v_like",
+            # 1352x1014, 300 frames, cam00 held out (official_moegs.md section 8)
+            paper_protocol={"resolution_scale": 0.5, "frames": (0, 300)},
+        ),
+        Dataset(
+            "technicolor",
+            "Technicolor",
+            {
+                "Birthday": "birthday",
+                "Fabien": "fabien",
+                "Painter": "painter",
+                "Theater": "theater",
+                "Train": "train",
+            },
+            stand_in="n3v_like",  # closest synthetic layout: forward-facing multi-view rig
+            paper_protocol={"resolution_scale": 1.0},  # full 2048x1088, 50-frame windows (loader default)
+        ),
+        Dataset(
+            "hypernerf",
+            "HyperNeRF (vrig)",
+            {"3dprinter": "3dprinter", "banana": "peel-banana", "broom": "broom", "chicken": "chicken"},
+            stand_in="dnerf_like",  # monocular
+            paper_protocol={"resolution_scale": 0.5},
+            multiview=False,
+        ),
+        Dataset(
+            "panoptic",
+            "PanopticSports",
+            {
+                "Basketball": "basketball",
+                "Boxes": "boxes",
+                "Football": "football",
+                "Juggle": "juggle",
+                "Softball": "softball",
+                "Tennis": "tennis",
+            },
+            stand_in="n3v_like",
+            paper_protocol={"resolution_scale": 1.0},  # 640x360, 150 frames
+        ),
+        Dataset(
+            "dnerf",
+            "D-NeRF",
+            {
+                "Bouncingballs": "bouncingballs",
+                "Hellwarrior": "hellwarrior",
+                "Hook": "hook",
+                "Jumpingjacks": "jumpingjacks",
+                "Lego": "lego",
+                "Mutant": "mutant",
+                "Standup": "standup",
+                "Trex": "trex",
+            },
+            stand_in="dnerf_like",
+            paper_protocol={"resolution_scale": 1.0},  # 800x800 (dynamic-GS protocol), white background
+            multiview=False,
+        ),
+    )
+}
+
+
+def get_dataset(name: str) -> Dataset:
+    """A dataset by loader name; ``KeyError`` lists the valid names."""
+    if name not in DATASETS:
+        raise KeyError(f"unknown dataset {name!r}; valid: {', '.join(DATASETS)}")
+    return DATASETS[name]

@@ -1,0 +1,99 @@
+"""Content addressing: canonical JSON hashes, the library's code version and software versions.
+
+``code_version()`` hashes the library's source (``moegs/**.py`` and the C kernel), so results and
+checkpoints are reused exactly while the code that made them is unchanged, across commits that touch
+only other files. ``MOEGS_BENCH_CODE_VERSION`` pins it (reuse old checkpoints at your own risk).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import platform
+import subprocess
+import sys
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parent.parent
+CODE_VERSION_ENV = "MOEGS_BENCH_CODE_VERSION"
+_SOURCE_SUFFIXES = (".py", ".c", ".h")
+
+
+def canonical_json(obj: Any) -> str:
+    """Deterministic JSON (sorted keys, no spaces, tuples as lists) for hashing."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=_default)
+
+
+def _default(obj: Any) -> Any:
+    if isinstance(obj, tuple | set | frozenset):
+        return sorted(obj) if isinstance(obj, set | frozenset) else list(obj)
+    if hasattr(obj, "items"):
+        return dict(obj.items())
+    raise TypeError(f"cannot hash object of type {type(obj).__name__}: {obj!r}")
+
+
+def digest(obj: Any, length: int = 20) -> str:
+    """Hex SHA-256 of the canonical JSON of ``obj`` (first ``length`` characters)."""
+    return hashlib.sha256(canonical_json(obj).encode()).hexdigest()[:length]
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+@cache
+def code_version() -> str:
+    """Hash of the library source (``moegs/``), or ``$MOEGS_BENCH_CODE_VERSION``."""
+    pinned = os.environ.get(CODE_VERSION_ENV)
+    if pinned:
+        return pinned
+    h = hashlib.sha256()
+    root = REPO / "moegs"
+    for p in sorted(root.rglob("*")):
+        if p.is_file() and p.suffix in _SOURCE_SUFFIXES and "__pycache__" not in p.parts:
+            h.update(str(p.relative_to(root)).encode() + b"\0" + p.read_bytes() + b"\0")
+    return h.hexdigest()[:16]
+
+
+@cache
+def git_commit() -> dict[str, Any]:
+    """``{"commit": sha or None, "dirty": bool or None}`` of the repository."""
+
+    def git(*args: str) -> str | None:
+        try:
+            out = subprocess.run(["git", *args], cwd=REPO, capture_output=True, text=True, timeout=10)
+        except (OSError, subprocess.SubprocessError):
+            return None
+        return out.stdout.strip() if out.returncode == 0 else None
+
+    commit = git("rev-parse", "HEAD")
+    status = git("status", "--porcelain", "--", "moegs")
+    return {"commit": commit, "dirty": None if status is None else bool(status)}
+
+
+def versions() -> dict[str, Any]:
+    """Software versions recorded in every result (torch only if already imported)."""
+    out: dict[str, Any] = {
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "moegs_code_version": code_version(),
+        "moegs_git": git_commit(),
+    }
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        out["torch"] = torch.__version__
+        out["torch_threads"] = torch.get_num_threads()
+    try:
+        import moegs
+
+        out["moegs"] = getattr(moegs, "__version__", None)
+    except ImportError:
+        out["moegs"] = None
+    return out

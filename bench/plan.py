@@ -1,0 +1,144 @@
+"""Expand specs into slots (row x scene x seed x budget) and the tasks that compute them.
+
+A *slot* is one printed value's ingredient: the evaluation of one row on one scene with one seed
+(and budget). Slots whose row kind needs library pieces that do not exist get no task and carry
+``"not implemented yet: <pieces>"``. The build tasks (scenes, experts, routers ...) that the
+evaluations need are collected and grouped into dependency levels so that an executor can run each
+level in parallel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from bench.cells import NOT_COMPUTED, kind_module, missing_pieces
+from bench.presets import BenchPreset
+from bench.registry import get_spec
+from bench.scenes import SceneRef, load_kwargs, resolve_scenes
+from bench.spec import Row, Spec
+from bench.tasks import Task
+
+NOT_IMPLEMENTED = "not implemented yet"
+
+
+@dataclass
+class Slot:
+    """One (row, scene, seed, budget column) of a spec."""
+
+    row: str
+    scene: SceneRef | None
+    seed: int
+    budget_column: str | None
+    task: Task | None
+    status: str
+    """``"planned"``, ``"external"``, ``"qualitative"`` or ``"not implemented yet: ..."``."""
+    missing: tuple[str, ...] = ()
+    """The library pieces the row's kind lacks."""
+
+
+@dataclass
+class SpecPlan:
+    spec: Spec
+    scenes: list[SceneRef]
+    seeds: list[int]
+    slots: list[Slot] = field(default_factory=list)
+
+    def slots_of(self, row: str) -> list[Slot]:
+        return [s for s in self.slots if s.row == row]
+
+    @property
+    def uses_stand_in(self) -> bool:
+        return any(not s.real for s in self.scenes)
+
+
+@dataclass
+class Plan:
+    preset: BenchPreset
+    specs: list[SpecPlan]
+
+    def eval_tasks(self) -> list[Task]:
+        """Unique evaluation tasks in spec order."""
+        seen: dict[str, Task] = {}
+        for sp in self.specs:
+            for slot in sp.slots:
+                if slot.task is not None:
+                    seen.setdefault(slot.task.key, slot.task)
+        return list(seen.values())
+
+    def build_levels(self) -> list[list[Task]]:
+        """Build tasks needed by the evaluations, grouped by dependency depth (level 0 first)."""
+        depth: dict[str, int] = {}
+        tasks: dict[str, Task] = {}
+
+        def visit(task: Task) -> int:
+            if task.key not in depth:
+                deps = getattr(kind_module(task.kind), "deps", lambda _t: [])(task)
+                depth[task.key] = 1 + max((visit(d) for d in deps), default=-1)
+                tasks[task.key] = task
+            return depth[task.key]
+
+        for ev in self.eval_tasks():
+            for art in kind_module(ev.kind).artifacts(ev):
+                visit(art)
+        levels: list[list[Task]] = [[] for _ in range(max(depth.values(), default=-1) + 1)]
+        for key, d in depth.items():
+            levels[d].append(tasks[key])
+        return levels
+
+    def closure(self, task: Task) -> list[Task]:
+        """Every build task an evaluation depends on (transitively)."""
+        out: dict[str, Task] = {}
+
+        def visit(t: Task) -> None:
+            if t.key not in out:
+                out[t.key] = t
+                for d in getattr(kind_module(t.kind), "deps", lambda _t: [])(t):
+                    visit(d)
+
+        for art in kind_module(task.kind).artifacts(task):
+            visit(art)
+        return list(out.values())
+
+
+def _variants(spec: Spec) -> list[tuple[str | None, float | None]]:
+    if spec.axis == "budgets":
+        return [(col, float(frac)) for col, frac in spec.budgets.items()]
+    return [(None, None)]
+
+
+def _slots(spec: Spec, row: Row, scenes: list[SceneRef], seeds: list[int], preset: BenchPreset) -> list[Slot]:
+    if row.kind in NOT_COMPUTED:
+        return [Slot(row.name, None, 0, None, None, row.kind)]
+    gone = missing_pieces(row.kind, dict(row.params))
+    status = f"{NOT_IMPLEMENTED}: {', '.join(gone)}" if gone else "planned"
+    out = []
+    for scene in scenes:
+        for seed in seeds:
+            for column, budget in _variants(spec):
+                params = dict(row.params)
+                if budget is not None and budget != 1.0:
+                    params["budget"] = budget
+                task = (
+                    None
+                    if gone
+                    else Task(
+                        "eval", row.kind, params, scene.name, load_kwargs(scene, preset), preset.name, seed
+                    )
+                )
+                out.append(Slot(row.name, scene, seed, column, task, status, tuple(gone)))
+    return out
+
+
+def plan_spec(spec: Spec, preset: BenchPreset) -> SpecPlan:
+    """Slots of one spec under ``preset``."""
+    scenes = resolve_scenes(spec.dataset, preset, spec.scenes) if spec.dataset else []
+    seeds = list(range(preset.seeds)) if spec.axis == "seeds" else list(spec.seeds)
+    sp = SpecPlan(spec, scenes, seeds)
+    for row in spec.rows:
+        sp.slots += _slots(spec, row, scenes, seeds, preset)
+    return sp
+
+
+def make_plan(specs: list[str | Spec], preset: BenchPreset) -> Plan:
+    """The plan of several specs (ids in any accepted spelling, or ``Spec`` objects)."""
+    return Plan(preset, [plan_spec(s if isinstance(s, Spec) else get_spec(s), preset) for s in specs])

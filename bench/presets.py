@@ -1,0 +1,160 @@
+"""Bench scale presets: ``tiny`` (tests), ``quick`` (CPU, every table in well under an hour), ``paper``.
+
+A bench preset fixes everything that changes the numbers: which expert config preset is used, the
+data scale (resolution, frames, synthetic stand-in size), the training schedules (steps overrides)
+and the evaluation protocol (test views, speed repeats, metric profile). It is part of every cell
+key, so results of different presets never mix. Any preset other than ``paper`` is *reduced scale*
+and every table and report produced from it says so.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+PRESET_ENV = "MOEGS_PRESET"
+
+
+@dataclass(frozen=True)
+class BenchPreset:
+    """One scale of the whole benchmark.
+
+    Attributes:
+        name: ``tiny`` | ``quick`` | ``paper``.
+        description: one line for captions and the report.
+        expert_preset: the experts' own config preset (``Expert.config_class.from_preset``).
+        synthetic_preset: ``moegs.data.synthetic`` preset of the stand-in scenes.
+        synthetic_overrides: field overrides of the stand-in spec (smaller images, fewer frames).
+        real: per dataset, loader keyword arguments for real scenes (resolution, frame window).
+        max_real_scenes: at most this many real scenes per dataset (``None``: all present).
+        train_steps: override of every expert's training iterations (``None``: the expert preset's).
+        router_steps / mode_steps / distill_steps: same for router, MoDE and distillation training.
+        seeds: number of repeated trainings on the ``seeds`` axis (Table IX).
+        test_views: evaluate at most this many test views, evenly spaced (``None``: all).
+        speed_views / speed_warmup / speed_repeats: the FPS protocol (``moegs.metrics.speed``).
+        metric_profile: ``moegs.metrics`` profile name used for every number.
+        trajectory_gaussians / trajectory_steps: sampling of the motion-trajectory analysis.
+        mdc_views: cameras per time step for multi-view depth consistency.
+        reduced: True when the numbers are not at the paper's scale.
+    """
+
+    name: str
+    description: str
+    expert_preset: str
+    synthetic_preset: str
+    synthetic_overrides: dict[str, Any] = field(default_factory=dict)
+    real: dict[str, dict[str, Any]] = field(default_factory=dict)
+    max_real_scenes: int | None = None
+    train_steps: int | None = None
+    router_steps: int | None = None
+    mode_steps: int | None = None
+    distill_steps: int | None = None
+    seeds: int = 3
+    test_views: int | None = None
+    speed_views: int = 3
+    speed_warmup: int = 2
+    speed_repeats: int = 5
+    metric_profile: str = "moegs"
+    trajectory_gaussians: int = 256
+    trajectory_steps: int = 16
+    mdc_views: int = 4
+    checkpoint_every: int = 0
+    """Write a resumable training checkpoint every this many iterations (0: only at the end)."""
+    reduced: bool = True
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def real_kwargs(self, dataset: str) -> dict[str, Any]:
+        """Loader keyword arguments for a real scene of ``dataset`` under this preset."""
+        return dict(self.real.get(dataset, {}))
+
+    def steps(self, default: int, override: int | None, budget: float = 1.0) -> int:
+        """Training iterations: the override (or ``default``) times the budget, at least 1."""
+        base = override if override is not None else default
+        return max(1, round(base * budget))
+
+
+PRESETS: dict[str, BenchPreset] = {
+    p.name: p
+    for p in (
+        BenchPreset(
+            "tiny",
+            "tiny (tests): 1/16-resolution real scenes, 48x36 stand-ins with 6 frames, 40 training steps",
+            expert_preset="quick",
+            synthetic_preset="quick",
+            synthetic_overrides={"width": 48, "height": 36, "num_frames": 6},
+            real={
+                "dnerf": {"resolution_scale": 1 / 16, "num_points": 2000},
+                "panoptic": {"resolution_scale": 1 / 8, "frames": (0, 4), "num_points": 2000},
+                "n3v": {"resolution_scale": 1 / 16, "frames": (0, 4), "num_points": 2000},
+                "technicolor": {"resolution_scale": 1 / 16, "num_points": 2000},
+                "hypernerf": {"resolution_scale": 1 / 8, "num_points": 2000},
+            },
+            max_real_scenes=1,
+            train_steps=40,
+            router_steps=20,
+            mode_steps=40,
+            distill_steps=20,
+            seeds=2,
+            test_views=3,
+            speed_views=1,
+            speed_warmup=1,
+            speed_repeats=2,
+            trajectory_gaussians=64,
+            trajectory_steps=6,
+            mdc_views=2,
+        ),
+        BenchPreset(
+            "quick",
+            "quick (CPU): 1/8-resolution real scenes (first frames), quick-preset stand-ins, short schedules",
+            expert_preset="quick",
+            synthetic_preset="quick",
+            real={
+                "dnerf": {"resolution_scale": 1 / 8, "num_points": 5000},
+                "panoptic": {"resolution_scale": 1 / 4, "frames": (0, 16), "num_points": 5000},
+                "n3v": {"resolution_scale": 1 / 8, "frames": (0, 16), "num_points": 5000},
+                "technicolor": {"resolution_scale": 1 / 8, "num_points": 5000},
+                "hypernerf": {"resolution_scale": 1 / 8, "num_points": 5000},
+            },
+            max_real_scenes=1,
+            train_steps=300,
+            router_steps=150,
+            mode_steps=300,
+            distill_steps=150,
+            seeds=3,
+            test_views=8,
+            speed_views=2,
+            speed_warmup=1,
+            speed_repeats=3,
+            trajectory_gaussians=128,
+            trajectory_steps=12,
+            mdc_views=3,
+        ),
+        BenchPreset(
+            "paper",
+            "paper protocol: full resolution and frames, the experts' paper schedules",
+            expert_preset="paper",
+            synthetic_preset="paper",
+            real={},
+            max_real_scenes=None,
+            seeds=5,
+            checkpoint_every=2000,
+            reduced=False,
+        ),
+    )
+}
+
+
+def default_preset() -> str:
+    """``$MOEGS_PRESET`` if set, else ``paper`` (``python -m bench.all`` without ``--quick``)."""
+    return os.environ.get(PRESET_ENV, "paper")
+
+
+def get_preset(name: str | None = None) -> BenchPreset:
+    """A preset by name (``None``: :func:`default_preset`); ``KeyError`` lists the valid names."""
+    key = name or default_preset()
+    if key not in PRESETS:
+        raise KeyError(f"unknown bench preset {key!r}; valid: {', '.join(PRESETS)}")
+    return PRESETS[key]

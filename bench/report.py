@@ -1,0 +1,313 @@
+"""``reports/REPORT.md``, ``reports/REPORT.html`` (figures embedded) and ``reports/summary.json``.
+
+Per table and figure: status (reproduced at which scale / stand-in data / missing library piece),
+the scenes used, the paper's claims that held and failed on our numbers (and, as a check of the
+claim's encoding, on the paper's own numbers), the largest deltas where ours is comparable, rows not
+implemented yet with the missing pieces, and failed cells with their log paths.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import platform
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bench.claims import NA, evaluate
+from bench.keys import code_version, git_commit
+from bench.presets import BenchPreset
+from bench.values import SpecValues
+
+
+@dataclass
+class SpecReport:
+    id: str
+    title: str
+    kind: str
+    status: str
+    scenes: list[str]
+    rows: dict[str, str]
+    claims: list[dict[str, Any]]
+    deltas: list[dict[str, Any]]
+    missing: list[str]
+    failures: list[dict[str, Any]]
+    notes: str
+    latex: str | None = None
+    figures: list[str] = field(default_factory=list)
+    invalid_results: list[str] = field(default_factory=list)
+
+
+def _status(values: SpecValues, preset: BenchPreset) -> str:
+    spec = values.spec
+    if spec.axis == "none":
+        return "qualitative: the paper's symbols, nothing to compute"
+    statuses = values.row_statuses()
+    computable = {r: s for r, s in statuses.items() if s not in ("external", "qualitative")}
+    ok = [r for r, s in computable.items() if s == "ok"]
+    ni = [r for r, s in computable.items() if s.startswith("not implemented")]
+    failed = [r for r, s in computable.items() if s == "failed"]
+    pending = [r for r, s in computable.items() if s == "pending"]
+    if computable and len(ni) == len(computable):
+        return "missing piece: " + ", ".join(values.missing_pieces())
+    scale = f"{preset.name} preset" + (" (reduced scale)" if preset.reduced else "")
+    stand = [s.name for s in values.plan.scenes if not s.real]
+    data = (
+        ("stand-in data (" + ", ".join(stand) + ")")
+        if stand
+        else "real data (" + ", ".join(s.name for s in values.plan.scenes) + ")"
+    )
+    if not ok and pending and not failed:
+        return f"not run yet ({len(pending)} row(s) pending)"
+    parts = [f"reproduced at {scale} on {data}: {len(ok)}/{len(computable)} rows"]
+    if ni:
+        parts.append(f"{len(ni)} row(s) missing pieces")
+    if failed:
+        parts.append(f"{len(failed)} row(s) with failed cells")
+    if pending:
+        parts.append(f"{len(pending)} row(s) not run")
+    return "; ".join(parts)
+
+
+def spec_report(
+    values: SpecValues, preset: BenchPreset, latex: Path | None = None, figures: list[Path] | None = None
+) -> SpecReport:
+    """Everything the report says about one spec."""
+    spec = values.spec
+    claims = []
+    for claim in spec.claims:
+        ours = evaluate(claim, values)
+        paper = evaluate(claim, values.paper) if values.paper_table is not None else None
+        claims.append(
+            {
+                "id": claim.id,
+                "text": claim.text,
+                "source": claim.source,
+                "ours": ours.status,
+                "ours_detail": ours.detail,
+                "paper": paper.status if paper else NA,
+                "paper_detail": paper.detail if paper else "the paper prints no numbers for this",
+            }
+        )
+    failures = [
+        {
+            "row": s.row,
+            "scene": s.scene.name if s.scene else None,
+            "seed": s.seed,
+            "detail": d,
+            "key": s.task.key if s.task else None,
+        }
+        for s, d in values.failures()
+    ]
+    return SpecReport(
+        id=spec.id,
+        title=spec.title,
+        kind="figure" if spec.figure else "table",
+        status=_status(values, preset),
+        scenes=[s.label for s in values.plan.scenes],
+        rows=values.row_statuses(),
+        claims=claims,
+        deltas=values.deltas()[:5],
+        missing=values.missing_pieces(),
+        failures=failures,
+        notes=spec.notes,
+        latex=str(latex) if latex else None,
+        figures=[str(f) for f in figures or []],
+        invalid_results=list(values.results.errors),
+    )
+
+
+# ------------------------------------------------------------------------------------ rendering
+def _header(preset: BenchPreset, run: dict[str, Any] | None) -> dict[str, Any]:
+    return {
+        "created": time.strftime("%Y-%m-%d %H:%M:%S %z"),
+        "preset": preset.name,
+        "preset_description": preset.description,
+        "reduced_scale": preset.reduced,
+        "machine": f"{platform.node()} ({platform.machine()}, {platform.system()})",
+        "moegs_code_version": code_version(),
+        "git": git_commit(),
+        "run": run or {},
+    }
+
+
+def _claim_counts(rep: SpecReport) -> str:
+    held = sum(c["ours"] == "held" for c in rep.claims)
+    failed = sum(c["ours"] == "failed" for c in rep.claims)
+    return f"{held} held / {failed} failed / {len(rep.claims) - held - failed} n/a"
+
+
+def _rel(path: str, base: Path) -> str:
+    try:
+        return str(Path(path).resolve().relative_to(base.resolve()))
+    except ValueError:
+        return path
+
+
+def render_markdown(reports: list[SpecReport], header: dict[str, Any], base: Path) -> str:
+    h = header
+    lines = [
+        "# moegs reproduction report",
+        "",
+        f"- created: {h['created']} on {h['machine']}",
+        f"- preset: **{h['preset']}** ({h['preset_description']})"
+        + (" - **reduced scale: numbers are not the paper's protocol**" if h["reduced_scale"] else ""),
+        f"- library code version: `{h['moegs_code_version']}`, git: `{h['git'].get('commit')}`"
+        + (" (moegs has uncommitted changes)" if h["git"].get("dirty") else ""),
+        "- Numbers come only from local result JSONs (ours) and `tables/paper` (the paper). "
+        "Δ = ours - paper, shown only where ours ran on the paper's real scene(s); "
+        "outputs from synthetic stand-in scenes say so.",
+        "",
+    ]
+    if h["run"]:
+        r = h["run"]
+        lines += [
+            f"- this run: {r.get('builds_run', 0)} builds + {r.get('evals_run', 0)} evaluations run, "
+            f"{r.get('builds_reused', 0)} builds + {r.get('evals_reused', 0)} evaluations reused, "
+            f"{len(r.get('failures', []))} failed, {r.get('seconds', 0):.0f} s",
+            "",
+        ]
+    lines += [
+        "## Summary",
+        "",
+        "| id | title | status | claims (ours) | largest Δ |",
+        "|---|---|---|---|---|",
+    ]
+    for rep in reports:
+        d = rep.deltas[0] if rep.deltas else None
+        delta = f"{d['row']} / {d['column']} {d['metric']}: {d['delta']:+.3f}" if d else "–"
+        lines.append(f"| {rep.id} | {rep.title} | {rep.status} | {_claim_counts(rep)} | {delta} |")
+    for rep in reports:
+        lines += ["", f"## {rep.id}: {rep.title}", "", f"**Status:** {rep.status}", ""]
+        if rep.scenes:
+            lines.append("**Scenes:** " + "; ".join(rep.scenes))
+        if rep.latex:
+            lines.append(f"**LaTeX:** `{_rel(rep.latex, base)}`")
+        if rep.notes:
+            lines.append(f"**Notes:** {rep.notes}")
+        lines.append("")
+        if rep.claims:
+            lines += ["| claim | ours | paper's numbers | detail (ours) |", "|---|---|---|---|"]
+            for c in rep.claims:
+                lines.append(
+                    f"| {c['text']} ({c['source']}) | {c['ours']} | {c['paper']} | "
+                    f"{c['ours_detail'].replace('|', '/')} |"
+                )
+            lines.append("")
+        if rep.deltas:
+            lines += ["Largest deltas (comparable cells):", ""]
+            lines += [
+                f"- {d['row']} / {d['column']} / {d['metric']}: ours {d['ours']:.4g} vs paper "
+                f"{d['paper']:.4g} (Δ {d['delta']:+.3f})"
+                for d in rep.deltas
+            ]
+            lines.append("")
+        ni = {r: s for r, s in rep.rows.items() if s.startswith("not implemented")}
+        if ni:
+            lines += ["Rows not implemented yet:", ""] + [f"- {r}: {s}" for r, s in ni.items()] + [""]
+        if rep.failures:
+            lines += (
+                ["Failed cells:", ""]
+                + [f"- {f['row']} on {f['scene']} (seed {f['seed']}): {f['detail']}" for f in rep.failures]
+                + [""]
+            )
+        for err in rep.invalid_results:
+            lines.append(f"- invalid result file: {err}")
+        for fig in rep.figures:
+            lines.append(f"![{rep.id}]({_rel(fig, base)})")
+    return "\n".join(lines) + "\n"
+
+
+def _img(path: str) -> str:
+    try:
+        data = base64.b64encode(Path(path).read_bytes()).decode()
+    except OSError:
+        return ""
+    name = html.escape(Path(path).name)
+    return f'<img src="data:image/png;base64,{data}" alt="{name}" style="max-width:100%">'
+
+
+def render_html(reports: list[SpecReport], header: dict[str, Any]) -> str:
+    e = html.escape
+    h = header
+    out = [
+        "<!doctype html><html><head><meta charset='utf-8'><title>moegs reproduction report</title>",
+        "<style>body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse}"
+        "td,th{border:1px solid #ccc;padding:3px 6px;font-size:13px;vertical-align:top}"
+        ".held{color:#1a7f37}.failed{color:#c62828}.na{color:#777}</style></head><body>",
+        "<h1>moegs reproduction report</h1>",
+        f"<p>created {e(h['created'])} on {e(h['machine'])}; preset <b>{e(h['preset'])}</b> "
+        f"({e(h['preset_description'])}){' - <b>reduced scale</b>' if h['reduced_scale'] else ''}; "
+        f"library code version <code>{e(h['moegs_code_version'])}</code>, git "
+        f"<code>{e(str(h['git'].get('commit')))}</code>.</p>",
+        "<p>Numbers come only from local result JSONs (ours) and tables/paper (the paper). "
+        "&Delta; = ours - paper, "
+        "only where ours ran on the paper's real scene(s).</p>",
+        "<h2>Summary</h2><table><tr><th>id</th><th>title</th><th>status</th><th>claims (ours)</th></tr>",
+    ]
+    for rep in reports:
+        out.append(
+            f"<tr><td><a href='#{rep.id}'>{rep.id}</a></td><td>{e(rep.title)}</td><td>{e(rep.status)}</td>"
+            f"<td>{e(_claim_counts(rep))}</td></tr>"
+        )
+    out.append("</table>")
+    for rep in reports:
+        out += [f"<h2 id='{rep.id}'>{rep.id}: {e(rep.title)}</h2>", f"<p><b>Status:</b> {e(rep.status)}</p>"]
+        if rep.scenes:
+            out.append(f"<p><b>Scenes:</b> {e('; '.join(rep.scenes))}</p>")
+        if rep.notes:
+            out.append(f"<p><b>Notes:</b> {e(rep.notes)}</p>")
+        if rep.claims:
+            out.append("<table><tr><th>claim</th><th>ours</th><th>paper's numbers</th><th>detail</th></tr>")
+            for c in rep.claims:
+                cls = {"held": "held", "failed": "failed"}.get(c["ours"], "na")
+                out.append(
+                    f"<tr><td>{e(c['text'])} <i>({e(c['source'])})</i></td><td class='{cls}'>{c['ours']}</td>"
+                    f"<td>{c['paper']}</td><td>{e(c['ours_detail'])}</td></tr>"
+                )
+            out.append("</table>")
+        if rep.deltas:
+            out.append(
+                "<p>Largest deltas: "
+                + "; ".join(
+                    e(f"{d['row']} / {d['column']} / {d['metric']}: {d['delta']:+.3f}") for d in rep.deltas
+                )
+                + "</p>"
+            )
+        ni = {r: s for r, s in rep.rows.items() if s.startswith("not implemented")}
+        if ni:
+            out.append(
+                "<p>Rows not implemented yet:</p><ul>"
+                + "".join(f"<li>{e(r)}: {e(s)}</li>" for r, s in ni.items())
+                + "</ul>"
+            )
+        if rep.failures:
+            out.append(
+                "<p>Failed cells:</p><ul>"
+                + "".join(
+                    f"<li>{e(f['row'])} on {e(str(f['scene']))}: {e(f['detail'])}</li>" for f in rep.failures
+                )
+                + "</ul>"
+            )
+        out += [_img(f) for f in rep.figures]
+    out.append("</body></html>")
+    return "\n".join(out) + "\n"
+
+
+def write_report(
+    reports: list[SpecReport], preset: BenchPreset, out_dir: Path, run: dict[str, Any] | None = None
+) -> dict[str, Path]:
+    """Write REPORT.md, REPORT.html and summary.json into ``out_dir``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    header = _header(preset, run)
+    paths = {"md": out_dir / "REPORT.md", "html": out_dir / "REPORT.html", "json": out_dir / "summary.json"}
+    paths["md"].write_text(render_markdown(reports, header, out_dir), encoding="utf-8")
+    paths["html"].write_text(render_html(reports, header), encoding="utf-8")
+    paths["json"].write_text(
+        json.dumps({"header": header, "specs": [asdict(r) for r in reports]}, indent=1, default=str) + "\n",
+        encoding="utf-8",
+    )
+    return paths

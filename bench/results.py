@@ -1,0 +1,88 @@
+"""Result JSON files: schema, atomic writes, validation.
+
+One file per evaluated cell (``Workspace.result_path``). Fields::
+
+    schema        "moegs.bench.result/1"
+    status        "ok" | "failed"
+    key           the task key (must match the file name and the task)
+    task          action, kind, params, scene, scene_kwargs, preset, seed
+    identity      everything the key hashes (incl. preset definition hash and code version)
+    metrics       {"psnr": ..., "ssim": ..., "lpips": ..., "fps": ..., "memory_mb": ..., ...}
+    metric_profile  moegs.metrics profile dict (name, id and every setting)
+    per_view      per test view: key, time, psnr, ssim, lpips (and region metrics)
+    details       kind-specific extras (speed protocol, pruning stats, trajectories summary ...)
+    files         {name: sha256} of arrays under <key>.files/
+    scene         name, kwargs, real, stand_in text, summary, input hash
+    artifacts     {key: {kind, params, files: {name: sha256}, build_seconds}} of the checkpoints used
+    timings       {"total_s", "load_s", "eval_s"}
+    versions      python, torch, platform, moegs code version and git commit
+    log           path of the task's log
+    error         (failed only) exception text and traceback
+    created       ISO time
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from bench.tasks import Task
+
+SCHEMA = "moegs.bench.result/1"
+REQUIRED = ("schema", "status", "key", "task", "metrics", "versions", "timings")
+
+
+class ResultError(ValueError):
+    """A result file is unreadable or inconsistent; the message names the file."""
+
+
+def write_json_atomic(path: Path, payload: dict[str, Any]) -> None:
+    """Write ``payload`` to ``path`` via a temporary file and ``os.replace`` (never half-written)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_text(json.dumps(payload, indent=1, sort_keys=True, default=str) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def read_result(path: Path) -> dict[str, Any]:
+    """Parse and check one result file; ``ResultError`` names the file and the problem."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ResultError(f"{path}: no such result file") from None
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise ResultError(f"{path}: not valid JSON ({err})") from None
+    if not isinstance(data, dict):
+        raise ResultError(f"{path}: expected a JSON object, got {type(data).__name__}")
+    missing = [k for k in REQUIRED if k not in data]
+    if missing:
+        raise ResultError(f"{path}: missing field(s) {missing}")
+    if data["schema"] != SCHEMA:
+        raise ResultError(f"{path}: schema {data['schema']!r}, expected {SCHEMA!r}")
+    if data["status"] not in ("ok", "failed"):
+        raise ResultError(f"{path}: status must be 'ok' or 'failed', got {data['status']!r}")
+    if Path(path).stem != data["key"]:
+        raise ResultError(f"{path}: key {data['key']!r} does not match the file name")
+    if not isinstance(data["metrics"], dict):
+        raise ResultError(f"{path}: 'metrics' must be an object")
+    return data
+
+
+def load_valid(path: Path, task: Task) -> dict[str, Any] | None:
+    """The result of ``task`` if its file exists, parses, is ``ok`` and belongs to ``task``; else None.
+
+    A file that exists but is broken raises ``ResultError`` (so the caller can say which file).
+    """
+    if not Path(path).is_file():
+        return None
+    data = read_result(path)
+    if data["key"] != task.key:
+        raise ResultError(f"{path}: result key {data['key']} is not the task key {task.key}")
+    return data if data["status"] == "ok" else None
+
+
+def now() -> str:
+    return time.strftime("%Y-%m-%dT%H:%M:%S%z")

@@ -1,0 +1,233 @@
+"""What a table or figure spec is: rows (methods) x columns (scenes / metrics / seeds / budgets).
+
+A spec is plain data (stdlib only), so ``bench.registry.list_specs()`` never imports torch. Each row
+names a cell *kind* (``bench.cells``) and its parameters; the planner (``bench.plan``) expands a spec
+into cells ``(kind, params, scene, preset, seed)`` and the table builder reads their results back.
+
+Axes:
+
+* ``"scenes"``: columns are the dataset's printed scenes plus ``Average`` (Tables II-IV, XII-XVII).
+* ``"metrics"``: columns are metrics averaged over the dataset's scenes (Tables V-VIII, X, XI, XIX).
+* ``"seeds"``: columns ``Min`` / ``Max`` / ``Average`` over repeated trainings (Table IX).
+* ``"budgets"``: columns are expert training budgets, e.g. ``50%`` (Table XVIII).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+AXES = ("scenes", "metrics", "seeds", "budgets", "none")
+
+#: The paper's expert names -> ``moegs.experts`` registry names.
+EXPERTS: dict[str, str] = {
+    "3DGS": "static",
+    "3DGS-MCMC": "mcmc",
+    "4DGaussians": "fourdgs",
+    "E-D3DGS": "ed3dgs",
+    "Grid4D": "grid4d",
+    "DeformableGS": "deformable",
+    "STG": "stg",
+    "Ex4DGS": "ex4dgs",
+}
+#: MoE-GS expert sets used throughout the paper (Section V-B "fixed combinations").
+MOE_SETS: dict[int, tuple[str, ...]] = {
+    2: ("ex4dgs", "stg"),
+    3: ("ex4dgs", "stg", "ed3dgs"),
+    4: ("ex4dgs", "stg", "ed3dgs", "fourdgs"),
+}
+
+
+@dataclass(frozen=True)
+class Metric:
+    """A reported quantity: printed name, key in a result's ``metrics``, direction, decimals."""
+
+    name: str
+    key: str
+    higher_is_better: bool
+    digits: int
+    unit: str = ""
+
+
+METRICS: dict[str, Metric] = {
+    m.name: m
+    for m in (
+        Metric("PSNR", "psnr", True, 2, "dB"),
+        Metric("SSIM", "ssim", True, 3),
+        Metric("LPIPS", "lpips", False, 3),
+        Metric("FPS", "fps", True, 1),
+        Metric("Memory", "memory_mb", False, 1, "MB"),
+        Metric("Time", "train_time_h", False, 3, "h"),
+        # region metrics (static / dynamic masks) for the ROI and MoDE trade-off figures
+        Metric("PSNR static", "psnr_static", True, 2, "dB"),
+        Metric("SSIM static", "ssim_static", True, 3),
+        Metric("PSNR dynamic", "psnr_dynamic", True, 2, "dB"),
+        Metric("SSIM dynamic", "ssim_dynamic", True, 3),
+        # geometry and motion analyses (figures)
+        Metric("MDC", "mdc", False, 4),
+        Metric("Coherence", "coherence", True, 3),
+        Metric("Curvature", "curvature", False, 3, "rad"),
+        Metric("Speed", "speed", True, 3),
+        Metric("Winners", "winners", True, 0),
+        Metric("Switches", "switches", True, 0),
+        Metric("Gate experts", "gate_experts", True, 0),
+    )
+}
+
+
+def metric(name: str) -> Metric:
+    """A metric by printed name; ``KeyError`` lists the valid names."""
+    if name not in METRICS:
+        raise KeyError(f"unknown metric {name!r}; valid: {', '.join(METRICS)}")
+    return METRICS[name]
+
+
+def _frozen(params: Mapping[str, Any] | None) -> Mapping[str, Any]:
+    return MappingProxyType(dict(params or {}))
+
+
+@dataclass(frozen=True)
+class Row:
+    """One row of a table: a method computed by the cell kind ``kind`` with ``params``.
+
+    ``name`` is the row name exactly as in ``tables/paper/<id>.json`` (or a new name for rows the
+    paper does not print); ``label`` is the LaTeX text (defaults to ``name``).
+    """
+
+    name: str
+    kind: str
+    params: Mapping[str, Any] = field(default_factory=dict)
+    label: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "params", _frozen(self.params))
+
+    @property
+    def display(self) -> str:
+        return self.label or self.name
+
+
+@dataclass(frozen=True)
+class Claim:
+    """A qualitative claim of the paper, checked on our values (and on the paper's, as a sanity check).
+
+    ``check`` names a function of ``bench.claims``; ``args`` are its keyword arguments.
+    ``source`` says where the paper makes the claim.
+    """
+
+    id: str
+    text: str
+    check: str
+    args: Mapping[str, Any] = field(default_factory=dict)
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "args", _frozen(self.args))
+
+
+@dataclass(frozen=True)
+class Spec:
+    """A paper table or a figure drawn from data.
+
+    Attributes:
+        id: ``tab01`` .. ``tab19`` or ``fig_*``.
+        title: short description.
+        dataset: ``bench.datasets`` name whose scenes the cells run on ("" for none).
+        axis: see the module docstring.
+        rows: the methods.
+        metrics: printed metric names shown (``METRICS`` keys).
+        columns: printed column names; empty -> the paper table's columns (tables) or the metrics.
+        column_metric: ``"metrics"`` axis: printed column -> metric name (default: identity).
+        budgets: ``"budgets"`` axis: printed column -> fraction of the expert's training.
+        seeds: seeds run for every cell; the ``"seeds"`` axis uses ``preset.seeds`` instead.
+        claims: the paper's claims about this table.
+        paper: id of the transcribed paper numbers (``tables/paper/<paper>.json`` or
+            ``tables/paper/text/<paper>.json``); "" when the paper prints none.
+        plot: name of a plot function in ``bench.plots`` (figures; tables get the generic bar plot).
+        figure: True for figure specs (no LaTeX table).
+        scenes: restrict to these loader scene names (figures about named scenes); empty = all.
+        notes: assumptions made by the spec (what the paper leaves unsaid).
+    """
+
+    id: str
+    title: str
+    dataset: str
+    axis: str
+    rows: tuple[Row, ...]
+    metrics: tuple[str, ...] = ("PSNR",)
+    columns: tuple[str, ...] = ()
+    column_metric: Mapping[str, str] = field(default_factory=dict)
+    budgets: Mapping[str, float] = field(default_factory=dict)
+    seeds: tuple[int, ...] = (0,)
+    claims: tuple[Claim, ...] = ()
+    paper: str = ""
+    plot: str = "paper_vs_ours"
+    figure: bool = False
+    scenes: tuple[str, ...] = ()
+    notes: str = ""
+
+    def __post_init__(self) -> None:
+        if self.axis not in AXES:
+            raise ValueError(f"{self.id}: axis must be one of {AXES}, got {self.axis!r}")
+        for m in self.metrics:
+            metric(m)
+        names = [r.name for r in self.rows]
+        if len(set(names)) != len(names):
+            raise ValueError(f"{self.id}: duplicate row names {names}")
+        object.__setattr__(self, "column_metric", _frozen(self.column_metric))
+        object.__setattr__(self, "budgets", _frozen(self.budgets))
+
+    def row(self, name: str) -> Row:
+        for r in self.rows:
+            if r.name == name:
+                return r
+        raise KeyError(f"{self.id}: unknown row {name!r}; rows: {[r.name for r in self.rows]}")
+
+    def metric_of_column(self, column: str) -> str:
+        """``"metrics"`` axis: the metric a printed column reports."""
+        return self.column_metric.get(column, column)
+
+
+# ------------------------------------------------------------------ row constructors (keep specs short)
+def expert(name: str, paper_name: str | None = None, **params: Any) -> Row:
+    """A single expert trained with the GT loss: ``expert("STG†", "STG")``."""
+    key = EXPERTS[paper_name or name]
+    return Row(name, "expert", {"expert": key, **params})
+
+
+def moe(name: str, experts: tuple[str, ...] | int, router: str = "vapr", **params: Any) -> Row:
+    """MoE-GS over ``experts`` (registry names or ``N`` for the paper's fixed set)."""
+    chosen = MOE_SETS[experts] if isinstance(experts, int) else tuple(experts)
+    return Row(name, "moe", {"experts": list(chosen), "router": router, **params})
+
+
+def mode(name: str, base: str, added: str, **params: Any) -> Row:
+    """MoDE: ``base`` canonical deformation plus the ``added`` deformation expert (paper names)."""
+    return Row(name, "mode", {"base": EXPERTS[base], "experts": [EXPERTS[base], EXPERTS[added]], **params})
+
+
+def distill(name: str, student: str, weighted: bool = True, teacher: int = 3, **params: Any) -> Row:
+    """An expert distilled from MoE-GS (``teacher``-expert set), with or without routing weights."""
+    return Row(
+        name,
+        "distill",
+        {
+            "student": EXPERTS[student],
+            "teacher": list(MOE_SETS[teacher]),
+            "router": "vapr",
+            "weighted": weighted,
+            **params,
+        },
+    )
+
+
+def external(name: str, why: str = "method outside the suite") -> Row:
+    """A baseline the suite does not implement (NeRF methods, other papers): paper value only."""
+    return Row(name, "external", {"why": why})
+
+
+def moe_label(n: int) -> str:
+    """Caption text for the fixed set of size ``n``, e.g. ``N=3: {ex4dgs, stg, ed3dgs}``."""
+    return f"N={n}: {{{', '.join(MOE_SETS[n])}}}"

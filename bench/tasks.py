@@ -1,0 +1,122 @@
+"""Tasks: the units of work, content-addressed.
+
+A ``Task`` either *builds* an artefact (a trained expert, a trained router, a MoDE model, a distilled
+expert; kept in the checkpoint store and shared by every table that needs it) or *evaluates* a cell
+(one number set for one method on one scene, written as one result JSON). Its key hashes everything
+that changes its output: action, kind, parameters, scene and loader arguments, bench preset (name
+and full definition), seed, and the library's code version. Two tables asking for the same thing
+get the same key, so the work is done once.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+from bench.keys import code_version, digest
+from bench.presets import get_preset
+
+SCHEMA = 1
+ACTIONS = ("build", "eval")
+
+
+def _plain(obj: Any) -> Any:
+    """Mappings/tuples -> dicts/lists, recursively (JSON-ready)."""
+    if isinstance(obj, Mapping):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_plain(v) for v in obj]
+    return obj
+
+
+@dataclass(frozen=True, eq=False)
+class Task:
+    """One build or evaluation.
+
+    Attributes:
+        action: ``"build"`` (artefact in the store) or ``"eval"`` (a result JSON).
+        kind: the ``bench.cells`` module doing it (``expert``, ``moe``, ``mode``, ``distill`` ...).
+        params: kind parameters (expert names, router variant, budget ...).
+        scene: ``moegs.data.load_scene`` name.
+        scene_kwargs: loader keyword arguments (from the preset).
+        preset: bench preset name.
+        seed: training seed.
+    """
+
+    action: str
+    kind: str
+    params: Mapping[str, Any]
+    scene: str
+    scene_kwargs: Mapping[str, Any] = field(default_factory=dict)
+    preset: str = "quick"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.action not in ACTIONS:
+            raise ValueError(f"Task.action must be one of {ACTIONS}, got {self.action!r}")
+        object.__setattr__(self, "params", MappingProxyType(_plain(self.params)))
+        object.__setattr__(self, "scene_kwargs", MappingProxyType(_plain(self.scene_kwargs)))
+
+    def identity(self) -> dict[str, Any]:
+        """Everything the key hashes."""
+        return {
+            "schema": SCHEMA,
+            "action": self.action,
+            "kind": self.kind,
+            "params": dict(self.params),
+            "scene": self.scene,
+            "scene_kwargs": dict(self.scene_kwargs),
+            "preset": self.preset,
+            "preset_definition": digest(get_preset(self.preset).to_dict()),
+            "seed": self.seed,
+            "code_version": code_version(),
+        }
+
+    @property
+    def key(self) -> str:
+        return digest(self.identity())
+
+    @property
+    def slug(self) -> str:
+        """Short human-readable name for logs: ``expert-grid4d@dnerf:mutant#s0``."""
+        p = self.params
+        what = p.get("expert") or p.get("student") or "+".join(p.get("experts", [])) or self.kind
+        extra = "".join(f"-{k}{p[k]}" for k in ("router", "budget", "prune", "weighted") if k in p)
+        return f"{self.kind}-{what}{extra}@{self.scene}#s{self.seed}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "action": self.action,
+            "kind": self.kind,
+            "params": _plain(self.params),
+            "scene": self.scene,
+            "scene_kwargs": _plain(self.scene_kwargs),
+            "preset": self.preset,
+            "seed": self.seed,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Task:
+        return cls(
+            **{k: data[k] for k in ("action", "kind", "params", "scene", "scene_kwargs", "preset", "seed")}
+        )
+
+    def derive(self, action: str, kind: str, params: Mapping[str, Any]) -> Task:
+        """A task on the same scene, preset and seed."""
+        return Task(action, kind, params, self.scene, self.scene_kwargs, self.preset, self.seed)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Task) and self.key == other.key
+
+    def __hash__(self) -> int:
+        return hash(self.key)
+
+    def __repr__(self) -> str:
+        return f"Task({self.action} {self.slug} key={self.key})"
+
+
+def dumps(task: Task) -> str:
+    return json.dumps(task.to_dict(), sort_keys=True)

@@ -1,0 +1,188 @@
+"""Run one task in this process: ``python -m bench.worker <job.json>`` (or ``run_job`` via submitit).
+
+A job file holds the task, the workspace root, the thread count and the log path. A build leaves its
+artefact in the store (or ``<key>.failed.json``); an evaluation writes its result JSON atomically,
+``status: "failed"`` with the traceback when it raises. The exit status is 0 on success.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+import traceback
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from bench.cells import kind_module
+from bench.cells import scene as scene_kind
+from bench.context import Context
+from bench.keys import CODE_VERSION_ENV, code_version, file_sha256, versions
+from bench.results import SCHEMA, now, write_json_atomic
+from bench.store import Workspace
+from bench.tasks import Task
+
+THREADS_ENV = "MOEGS_BENCH_THREADS"
+
+
+def write_job(workspace: Workspace, task: Task, threads: int | None) -> Path:
+    """The job file of ``task`` (what the worker process reads)."""
+    path = workspace.job_path(task)
+    write_json_atomic(
+        path,
+        {
+            "task": task.to_dict(),
+            "key": task.key,
+            "workspace": str(workspace.root),
+            "threads": threads,
+            "log": str(workspace.log_path(task)),
+            "code_version": code_version(),
+        },
+    )
+    return path
+
+
+@contextmanager
+def _redirect(log_path: Path | None):
+    """Send this process's stdout/stderr (including C-level writes) to ``log_path``."""
+    if log_path is None:
+        yield
+        return
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    with open(log_path, "a") as fh:
+        os.dup2(fh.fileno(), 1)
+        os.dup2(fh.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+
+
+def _set_threads(threads: int | None) -> None:
+    threads = threads or (int(os.environ[THREADS_ENV]) if os.environ.get(THREADS_ENV) else None)
+    if threads:
+        import torch
+
+        torch.set_num_threads(threads)
+
+
+def _evaluate(task: Task, ctx: Context, log: Path) -> dict[str, Any]:
+    start = time.perf_counter()
+    base = {
+        "schema": SCHEMA,
+        "key": task.key,
+        "task": task.to_dict(),
+        "identity": task.identity(),
+        "log": str(log),
+        "created": now(),
+    }
+    try:
+        scene_meta = ctx.meta(scene_kind.task_for(task))
+        loaded = time.perf_counter()
+        payload = kind_module(task.kind).run(task, ctx)
+        files_dir = ctx.workspace.files_dir(task)
+        files = {name: file_sha256(files_dir / name) for name in payload.get("files", [])}
+        result = {
+            **base,
+            "status": "ok",
+            "metrics": payload["metrics"],
+            "metric_profile": payload.get("metric_profile"),
+            "per_view": payload.get("per_view", []),
+            "details": payload.get("details", {}),
+            "files": files,
+            "scene": {k: scene_meta.get(k) for k in ("scene", "summary", "stand_in", "real", "input_hash")}
+            | {"kwargs": dict(task.scene_kwargs)},
+            "artifacts": ctx.used,
+            "timings": {
+                "total_s": time.perf_counter() - start,
+                "load_s": loaded - start,
+                "eval_s": time.perf_counter() - loaded,
+            },
+            "versions": versions(),
+        }
+    except Exception as err:
+        result = {
+            **base,
+            "status": "failed",
+            "metrics": {},
+            "artifacts": ctx.used,
+            "error": f"{type(err).__name__}: {err}",
+            "traceback": traceback.format_exc(),
+            "timings": {"total_s": time.perf_counter() - start},
+            "versions": versions(),
+        }
+        write_json_atomic(ctx.workspace.result_path(task), result)
+        raise
+    write_json_atomic(ctx.workspace.result_path(task), result)
+    return result
+
+
+def _build(task: Task, ctx: Context, log: Path) -> dict[str, Any]:
+    try:
+        ctx.artifact(task)
+    except Exception as err:
+        write_json_atomic(
+            ctx.workspace.failure_path(task),
+            {
+                "key": task.key,
+                "task": task.to_dict(),
+                "error": f"{type(err).__name__}: {err}",
+                "traceback": traceback.format_exc(),
+                "log": str(log),
+                "created": now(),
+            },
+        )
+        raise
+    return {"key": task.key, "status": "ok"}
+
+
+def run_job(job_file: str | Path, redirect: bool = False) -> dict[str, Any]:
+    """Run the task of ``job_file``; ``redirect`` sends output to the job's log (submitit path)."""
+    job = json.loads(Path(job_file).read_text())
+    # the whole run uses the code version the runner planned with (the source may be edited meanwhile)
+    os.environ[CODE_VERSION_ENV] = job["code_version"]
+    code_version.cache_clear()
+    task = Task.from_dict(job["task"])
+    if task.key != job["key"]:
+        raise RuntimeError(
+            f"{job_file}: task key changed since the job was written (code or preset edited "
+            f"during the run?): {job['key']} -> {task.key}"
+        )
+    workspace = Workspace(job["workspace"])
+    log = Path(job["log"])
+    with _redirect(log if redirect else None):
+        print(f"[bench] {time.strftime('%H:%M:%S')} {task.action} {task.slug} key={task.key}", flush=True)
+        _set_threads(job.get("threads"))
+        ctx = Context(workspace, task.preset, progress=False)
+        ctx.task = task
+        if task.action == "build":
+            return _build(task, ctx, log)
+        result = _evaluate(task, ctx, log)
+        return {"key": task.key, "status": result["status"]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        print("usage: python -m bench.worker <job.json>", file=sys.stderr)
+        return 2
+    try:
+        run_job(args[0])
+    except Exception:
+        traceback.print_exc()
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,173 @@
+"""Task keys, result files (atomic, validated, errors name the file), the artefact store, claim checks."""
+
+from __future__ import annotations
+
+import json
+import threading
+
+import pytest
+
+from bench.claims import FAILED, HELD, NA, better, monotone, order
+from bench.keys import code_version, digest
+from bench.results import SCHEMA, ResultError, load_valid, read_result, write_json_atomic
+from bench.store import Workspace
+from bench.tasks import Task
+
+
+def _task(**kw) -> Task:
+    base = {
+        "action": "eval",
+        "kind": "expert",
+        "params": {"expert": "static"},
+        "scene": "dnerf:mutant",
+        "scene_kwargs": {"resolution_scale": 0.0625},
+        "preset": "tiny",
+        "seed": 0,
+    }
+    return Task(**{**base, **kw})
+
+
+def test_task_key_is_content_addressed():
+    a, b = _task(), _task()
+    assert a == b and a.key == b.key and len({a, b}) == 1
+    assert _task(seed=1).key != a.key
+    assert _task(params={"expert": "mcmc"}).key != a.key
+    assert _task(preset="quick").key != a.key
+    assert a.identity()["code_version"] == code_version()
+    assert Task.from_dict(a.to_dict()) == a
+    assert digest({"x": (1, 2)}) == digest({"x": [1, 2]})
+
+
+def test_code_version_pin(monkeypatch):
+    monkeypatch.setenv("MOEGS_BENCH_CODE_VERSION", "pinned")
+    code_version.cache_clear()
+    try:
+        assert _task().identity()["code_version"] == "pinned"
+    finally:
+        monkeypatch.delenv("MOEGS_BENCH_CODE_VERSION")
+        code_version.cache_clear()
+
+
+def _result(task: Task, **kw) -> dict:
+    return {
+        "schema": SCHEMA,
+        "status": "ok",
+        "key": task.key,
+        "task": task.to_dict(),
+        "metrics": {"psnr": 30.0},
+        "versions": {},
+        "timings": {},
+        **kw,
+    }
+
+
+def test_result_roundtrip_and_validation(tmp_path):
+    ws = Workspace(tmp_path)
+    task = _task()
+    path = ws.result_path(task)
+    assert load_valid(path, task) is None  # not computed yet
+    write_json_atomic(path, _result(task))
+    assert load_valid(path, task)["metrics"]["psnr"] == 30.0
+    assert not list(path.parent.glob(".*tmp*")), "atomic write leaves no temporary file"
+    write_json_atomic(path, _result(task, status="failed"))
+    assert load_valid(path, task) is None  # failed results are recomputed
+
+
+@pytest.mark.parametrize(
+    "content,message",
+    [
+        ("{not json", "not valid JSON"),
+        ("[1, 2]", "expected a JSON object"),
+        ('{"schema": "x"}', "missing field"),
+    ],
+)
+def test_bad_result_file_names_the_file(tmp_path, content, message):
+    task = _task()
+    path = Workspace(tmp_path).result_path(task)
+    path.parent.mkdir(parents=True)
+    path.write_text(content)
+    with pytest.raises(ResultError, match=message) as err:
+        load_valid(path, task)
+    assert str(path) in str(err.value)
+
+
+def test_result_key_must_match_file(tmp_path):
+    task = _task()
+    path = tmp_path / "other.json"
+    write_json_atomic(path, _result(task))
+    with pytest.raises(ResultError, match="does not match the file name"):
+        read_result(path)
+
+
+def test_store_builds_once_under_concurrency(tmp_path):
+    ws = Workspace(tmp_path)
+    task = _task(action="build")
+    calls = []
+
+    def build(out):
+        calls.append(1)
+        (out / "checkpoint.bin").write_bytes(b"x")
+        return {"train_seconds": 1.0}
+
+    threads = [threading.Thread(target=ws.ensure, args=(task, build)) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(calls) == 1 and ws.is_built(task)
+    meta = ws.artifact_meta(task)
+    assert meta["key"] == task.key and "checkpoint.bin" in meta["files"] and meta["train_seconds"] == 1.0
+
+
+def test_store_failed_build_leaves_nothing_finished(tmp_path):
+    ws = Workspace(tmp_path)
+    task = _task(action="build")
+
+    def boom(out):
+        raise RuntimeError("training diverged")
+
+    with pytest.raises(RuntimeError):
+        ws.ensure(task, boom)
+    assert not ws.is_built(task)
+    with pytest.raises(Exception, match="not built"):
+        ws.artifact_meta(task)
+
+
+class _View:
+    def __init__(self, data):
+        self.data = data
+
+    def get(self, row, column, metric):
+        return self.data.get((row, column, metric))
+
+    def columns(self, selector):
+        return ["A", "B"] if selector == "@scenes" else (["avg"] if selector == "@mean" else list(selector))
+
+
+def test_claim_checks():
+    v = _View(
+        {
+            ("moe", "A", "PSNR"): 30.0,
+            ("e1", "A", "PSNR"): 29.0,
+            ("moe", "B", "PSNR"): 31.0,
+            ("e1", "B", "PSNR"): 31.5,
+            ("moe", "A", "LPIPS"): 0.1,
+            ("e1", "A", "LPIPS"): 0.2,
+        }
+    )
+    assert better(v, "moe", "e1", columns=["A"]).status == HELD
+    assert better(v, "moe", "e1", columns="@scenes").status == FAILED
+    assert better(v, "moe", "e1", metric="LPIPS", columns=["A"]).status == HELD  # lower is better
+    assert better(v, "moe", "missing", columns=["A"]).status == NA
+    assert order(v, ["e1", "moe"], columns=["B"]).status == HELD
+    assert monotone(v, ["moe"], ["B", "A"]).status == HELD
+    assert monotone(v, ["moe"], ["A", "B"]).status == FAILED
+
+
+def test_workspace_layout(tmp_path):
+    ws = Workspace(tmp_path)
+    task = _task()
+    assert ws.result_path(task).parent.name == "expert"
+    assert ws.result_path(task).name == f"{task.key}.json"
+    assert str(ws.log_path(task)).endswith(f"eval/expert/{task.key}.log")
+    json.dumps(task.identity())  # JSON-serialisable
