@@ -4,8 +4,9 @@ Per 1-based iteration ``step`` (3DGS ``iteration``)::
 
     expert.on_step(step)                   # stage switch -> fresh optimisers from param_groups()
     lr = schedules(step)
-    views = one batch per view group       # ViewSampler
-    loss = mean over views of photometric(render, gt) + expert.regularization(step, frame)
+    views = expert.select_views(...) or one batch per view group   # ViewSampler
+    loss = mean over views of photometric(expert.render(...), gt) + expert.regularization(step, frame)
+                                 + expert.observe(step, view, rgb, gt, out)
     strategy.step_pre_backward ; loss.backward() ; strategy.step_post_backward   # 3DGS densifies here
     optimiser step (skipped at the last iteration, as in 3DGS ``if iteration < opt.iterations``)
     strategy.step_post_optimizer           # 3DGS-MCMC noise
@@ -104,7 +105,8 @@ class _Run:
         if expert.on_step(step):
             self.optimizers = Optimizers(expert.param_groups())
         self.optimizers.set_step(step)
-        views = [self.scene.train[i] for i in self.sampler.next()]
+        picked = expert.select_views(step, self.scene.train, config.batch_size, self.sampler.generator)
+        views = [self.scene.train[i] for i in (self.sampler.next() if picked is None else picked)]
         splat_opts = self.splat_optimizers() if strategy else {}
         info: dict[str, Any] = {"renders": []}
         if strategy:
@@ -114,8 +116,16 @@ class _Run:
         loss = 0.0
         for view in views:
             cam = view.camera
-            rgb, out, frame = render_view(expert, cam, self.scene.background, config.backend, needs_stats)
-            view_loss = photometric(rgb, view.image(), config.lambda_dssim) + expert.regularization(step, frame)
+            try:
+                rgb, out, frame = render_view(expert, cam, self.scene.background, config.backend, needs_stats)
+            except FloatingPointError as err:  # the rasterizer names the non-finite field of the frame
+                raise NonFiniteError(f"step {step}: view {view.key}: {err}; training stopped. {self.last_good}") \
+                    from err
+            target = view.image()
+            view_loss = photometric(rgb, target, config.lambda_dssim) + expert.regularization(step, frame)
+            extra = expert.observe(step, view, rgb, target, out)
+            if extra is not None:
+                view_loss = view_loss + extra
             _check_finite(step, "loss of view", {view.key: view_loss.detach()}, self.last_good)
             loss = loss + view_loss
             if needs_stats:

@@ -1,0 +1,145 @@
+"""The training loop on a tiny in-memory scene: determinism, resume, checkpoints, NaN detection."""
+
+import json
+
+import pytest
+import torch
+from helpers.scenes import tiny_scene
+
+from moegs.experts.mcmc import MCMCConfig, MCMCExpert
+from moegs.experts.static import StaticConfig, StaticExpert
+from moegs.io import load_checkpoint
+from moegs.train.checkpoint import CHECKPOINT_NAME, load_expert
+from moegs.train.config import TrainConfig
+from moegs.train.loop import NonFiniteError, train
+from moegs.train.strategy import ADCStrategy, MCMCStrategy
+
+ITERS = 40
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return tiny_scene()
+
+
+def _static(scene, **train_kw):
+    cfg = StaticConfig(strategy=ADCStrategy(densify_from=5, densify_every=10, densify_until=35, reset_every=20),
+                       means_lr_max_steps=ITERS, train=TrainConfig(iterations=ITERS, **train_kw))
+    return StaticExpert.from_scene(scene, cfg)
+
+
+def _mcmc(scene, **train_kw):
+    cfg = MCMCConfig(strategy=MCMCStrategy(cap_max=150, refine_from=5, refine_every=10, group_key="model"),
+                     max_init_points=100, train=TrainConfig(iterations=ITERS, **train_kw))
+    return MCMCExpert.from_scene(scene, cfg)
+
+
+def _state(expert):
+    return {k: v.detach().clone() for k, v in expert.state_dict().items()}
+
+
+def _assert_same(a, b):
+    assert a.keys() == b.keys()
+    for k in a:
+        assert torch.equal(a[k], b[k]), k
+
+
+@pytest.mark.parametrize("make", [_static, _mcmc], ids=["static", "mcmc"])
+def test_two_runs_are_identical(scene, make):
+    e1, e2 = make(scene), make(scene)
+    r1 = train(e1, scene, progress=False)
+    r2 = train(e2, scene, progress=False)
+    assert r1["final_loss"] == r2["final_loss"]
+    _assert_same(_state(e1), _state(e2))
+    assert r1["test"]["psnr"] == r2["test"]["psnr"]
+
+
+@pytest.mark.parametrize("make", [_static, _mcmc], ids=["static", "mcmc"])
+def test_resume_continues_exactly(scene, make, tmp_path):
+    full = make(scene, checkpoint_every=10)
+    r_full = train(full, scene, out_dir=tmp_path / "full", progress=False)
+
+    part = make(scene, checkpoint_every=10)
+    r_part = train(part, scene, out_dir=tmp_path / "part", progress=False, stop_after=25)
+    assert not r_part["completed"] and r_part["test"] is None
+    assert load_checkpoint(tmp_path / "part" / CHECKPOINT_NAME)["step"] == 25
+
+    resumed = make(scene, checkpoint_every=10)  # a fresh process would rebuild the expert like this
+    r_res = train(resumed, scene, out_dir=tmp_path / "part", progress=False)
+    assert r_res["resumed_from"] == 25 and r_res["completed"]
+    _assert_same(_state(full), _state(resumed))
+    assert load_checkpoint(tmp_path / "full" / CHECKPOINT_NAME)["history"] == \
+        load_checkpoint(tmp_path / "part" / CHECKPOINT_NAME)["history"]
+    assert r_full["test"]["psnr"] == r_res["test"]["psnr"]
+
+
+def test_checkpoint_round_trip_and_outputs(scene, tmp_path):
+    expert = _static(scene)
+    result = train(expert, scene, out_dir=tmp_path, progress=False)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    config = json.loads((tmp_path / "config.json").read_text())
+    assert metrics["num_gaussians"] == expert.num_gaussians == result["num_gaussians"]
+    assert metrics["test"]["psnr"] == pytest.approx(result["test"]["psnr"])
+    assert config["config"]["strategy"]["densify_every"] == 10 and config["train"]["iterations"] == ITERS
+    assert metrics["test"]["lpips"] is not None or metrics["test"]["lpips_unavailable"]
+
+    loaded, state = load_expert(tmp_path, scene)
+    _assert_same(_state(expert), _state(loaded))
+    assert loaded.active_sh_degree == expert.active_sh_degree
+    saved_opt = state["optimizers"]["means"]["state"][0]
+    assert saved_opt["exp_avg"].shape == expert.splats["means"].shape
+    # as in 3DGS: no step at the last iteration, nor at densification steps 10, 20, 30 (the replaced
+    # tensors have no gradient)
+    assert int(saved_opt["step"]) == ITERS - 1 - 3
+
+
+def test_resume_refuses_another_config(scene, tmp_path):
+    train(_static(scene), scene, out_dir=tmp_path, progress=False, stop_after=5)
+    other = _static(scene, lambda_dssim=0.0)
+    with pytest.raises(ValueError, match="written with another config"):
+        train(other, scene, out_dir=tmp_path, progress=False)
+
+
+class _InfiniteGradient(StaticExpert):
+    """sqrt(x - x) has value 0 but an infinite gradient: trips the gradient check at step 7."""
+
+    def regularization(self, step, frame=None):
+        if step < 7:
+            return super().regularization(step, frame)
+        q = self.splats["quats"][0, 1]
+        return torch.sqrt(q - q)
+
+
+def test_non_finite_gradient_stops_with_clear_message(scene, tmp_path):
+    cfg = StaticConfig(strategy=ADCStrategy(densify_from=1000), train=TrainConfig(iterations=ITERS, checkpoint_every=5))
+    expert = _InfiniteGradient.from_scene(scene, cfg)
+    with pytest.raises(NonFiniteError, match=r"step 7: gradient of splats\.quats has 1 NaN/Inf value\(s\)") as err:
+        train(expert, scene, out_dir=tmp_path, progress=False)
+    assert f"Last good checkpoint: {tmp_path / CHECKPOINT_NAME} (step 5)" in str(err.value)
+    assert load_checkpoint(tmp_path / CHECKPOINT_NAME)["step"] == 5
+    assert not (tmp_path / "metrics.json").exists()
+
+
+def test_non_finite_loss_names_the_view(scene):
+    expert = _static(scene)
+    with torch.no_grad():
+        expert.splats["sh0"][:] = float("nan")
+    with pytest.raises(NonFiniteError, match=r"step 1: view tiny/\d/\d: frame.sh contains NaN or Inf") as err:
+        train(expert, scene, progress=False)
+    assert "No checkpoint was written yet" in str(err.value)
+
+
+class _TwoStage(StaticExpert):
+    """Starts a new stage at step 10: the loop must build fresh optimisers."""
+
+    def on_step(self, step):
+        super().on_step(step)
+        return step == 10
+
+
+def test_stage_switch_rebuilds_optimizers(scene, tmp_path):
+    cfg = StaticConfig(strategy=ADCStrategy(densify_from=1000), train=TrainConfig(iterations=20))
+    expert = _TwoStage.from_scene(scene, cfg)
+    train(expert, scene, out_dir=tmp_path, progress=False)
+    steps = load_checkpoint(tmp_path / CHECKPOINT_NAME)["optimizers"]["means"]["state"][0]["step"]
+    assert int(steps) == 10  # steps 10..19 since the switch (the last iteration takes no step)
