@@ -28,6 +28,7 @@ from moegs.train.config import TrainConfig
 
 if TYPE_CHECKING:
     from moegs.data.scene import Scene, View
+    from moegs.render import RenderOutput
     from moegs.train.strategy.base import Strategy
 
 
@@ -117,6 +118,17 @@ class Expert(nn.Module, metaclass=abc.ABCMeta):
         """Turn a splatted image ``[H, W, C]`` into RGB ``[H, W, 3]`` (identity except STG)."""
         return features
 
+    def render(self, camera: Camera, background: Tensor | None, backend: str = "auto",
+               return_stats: bool = False) -> tuple[Tensor, RenderOutput, GaussianFrame]:
+        """``(rgb [H, W, 3], RenderOutput, frame)`` at ``camera.time``, with gradients; used for training
+        and evaluation. Default: ``rasterize(frame(t))`` then ``decode``. Experts override it for their own
+        rasteriser mode or background handling (Ex4DGS antialiasing, STG feature backgrounds)."""
+        from moegs.render import rasterize
+
+        frame = self.frame(camera.time, camera)
+        out = rasterize(frame, camera, background=background, return_stats=return_stats, backend=backend)
+        return self.decode(out.image, camera), out, frame
+
     @abc.abstractmethod
     def param_groups(self) -> list[ParamGroup]:
         """Optimiser groups with each method's learning rates and schedules."""
@@ -135,6 +147,18 @@ class Expert(nn.Module, metaclass=abc.ABCMeta):
 
     def strategy(self) -> Strategy | None:
         """The densification strategy acting on ``splats`` (None: the set of Gaussians is fixed)."""
+        return None
+
+    def select_views(self, step: int, views: list[View], batch_size: int,
+                     generator: torch.Generator) -> list[int] | None:
+        """Indices into ``views`` (the training views) to train on at ``step``, or None for the loop's
+        shuffled sampler. ``generator`` is the sampler's own, checkpointed generator (E-D3DGS camera and
+        error-guided sampling, STG same-time view pairs, Ex4DGS progressive frames)."""
+        return None
+
+    def observe(self, step: int, view: View, rgb: Tensor, target: Tensor, out: RenderOutput) -> Tensor | None:
+        """Called after each training view's loss, before ``backward``: an extra loss term for that view
+        (or None); experts also record per-view errors here (default: nothing)."""
         return None
 
     def view_groups(self, views: list[View]) -> list[int] | None:

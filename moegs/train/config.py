@@ -15,8 +15,9 @@ class TrainConfig:
     """Views per step drawn from each view group (3DGS-lineage methods: one image per step)."""
     lambda_dssim: float = 0.2
     """Loss = (1 - lambda) L1 + lambda (1 - SSIM) (3DGS ``lambda_dssim``)."""
-    resolution_scale: float = 1.0
-    """Image scale used when the scene is loaded for this run (1.0 = the dataset's protocol)."""
+    resolution_scale: float | None = None
+    """``resolution_scale`` passed to the scene loader for this run (None: the loader's default, which
+    is the dataset's protocol)."""
     seed: int = 0
     """Seeds the initialisation subsampling, view order and every random op of training."""
     eval_every: int = 0

@@ -9,15 +9,12 @@ from moegs.camera import Camera
 from moegs.data.scene import View
 from moegs.experts.base import Expert
 from moegs.metrics import evaluate_images
-from moegs.render import rasterize
 
 
 def render_view(expert: Expert, camera: Camera, background: Tensor | None, backend: str = "auto",
                 return_stats: bool = False):
     """``(rgb [H, W, 3], RenderOutput, frame)`` of ``expert`` at the camera's time (with gradients)."""
-    frame = expert.frame(camera.time, camera)
-    out = rasterize(frame, camera, background=background, return_stats=return_stats, backend=backend)
-    return expert.decode(out.image, camera), out, frame
+    return expert.render(camera, background, backend, return_stats)
 
 
 def eval_views(views: list[View], max_views: int | None) -> list[View]:

@@ -1,0 +1,189 @@
+"""``moegs`` command line: list, train, eval, render, export.
+
+    moegs list
+    moegs train --expert static --scene dnerf:mutant --preset quick --out runs/static-mutant
+    moegs eval runs/static-mutant --profile clean
+    moegs render runs/static-mutant            # test views -> PNGs, video.mp4, psnr.csv
+    moegs export runs/static-mutant --time 0.5 --out mutant.ply
+
+Heavy modules (experts, rasterizer, loaders) are imported inside the commands, so ``moegs list``
+and ``--help`` stay fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def _cmd_list(args: argparse.Namespace) -> int:
+    from moegs.data import list_datasets, list_scenes
+    from moegs.experts import list_experts
+
+    print("experts:")
+    for spec in list_experts():
+        print(f"  {spec.name:<12} {spec.description}")
+    print("scenes (found under the data root; synthetic:<name> is generated on demand):")
+    for dataset in list_datasets():
+        found = list_scenes(dataset)
+        print(f"  {dataset:<12} {', '.join(found) if found else '-'}")
+    return 0
+
+
+def _load_scene(name: str, resolution_scale: float | None):
+    from moegs.data import load_scene
+
+    kwargs = {} if resolution_scale is None else {"resolution_scale": resolution_scale}
+    return load_scene(name, **kwargs)
+
+
+def _run_dir(path: str) -> tuple[Path, dict]:
+    """A run folder and its ``config.json``."""
+    run = Path(path)
+    config = run / "config.json"
+    if not config.is_file():
+        raise FileNotFoundError(f"{run} is not a training run (no config.json); train one with `moegs train`")
+    return run, json.loads(config.read_text())
+
+
+def _load_run(path: str):
+    """``(run folder, run config, scene, expert)`` of a finished or interrupted run."""
+    from moegs.train.checkpoint import load_expert
+
+    run, meta = _run_dir(path)
+    scene = _load_scene(meta["scene"], meta["train"]["resolution_scale"])
+    expert, _ = load_expert(run, scene)
+    return run, meta, scene, expert
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from moegs.experts import get_expert_class
+    from moegs.train.loop import train
+
+    cls = get_expert_class(args.expert)
+    config = cls.config_class.from_preset(args.preset)
+    overrides = {"seed": args.seed}
+    if args.iterations is not None:
+        overrides["iterations"] = args.iterations
+    if args.resolution_scale is not None:
+        overrides["resolution_scale"] = args.resolution_scale
+    config = replace(config, train=replace(config.train, **overrides))
+    scene = _load_scene(args.scene, config.train.resolution_scale)
+    print(scene.summary())
+    out = Path(args.out or Path("runs") / f"{args.expert}_{args.scene.replace(':', '_')}_{args.preset}_s{args.seed}")
+    expert = cls.from_scene(scene, config)
+    result = train(expert, scene, out_dir=out, resume=not args.no_resume, progress=not args.quiet)
+    test = result["test"] or {}
+    print(f"{args.expert} on {scene.name}: {result['num_gaussians']} Gaussians, "
+          f"{result['train_seconds']:.1f} s training, test PSNR {test.get('psnr', float('nan')):.2f} "
+          f"SSIM {test.get('ssim', float('nan')):.4f} -> {out}")
+    return 0
+
+
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from moegs.io import write_json
+    from moegs.train.evaluate import evaluate
+
+    run, meta, scene, expert = _load_run(args.run)
+    result = evaluate(expert, scene.test, scene.background, args.profile, meta["train"]["backend"])
+    write_json(run / f"eval-{args.profile}.json", result)
+    lpips = "n/a" if result["lpips"] is None else f"{result['lpips']:.4f}"
+    print(f"{meta['expert']} on {scene.name} ({result['num_views']} test views, profile {args.profile}): "
+          f"PSNR {result['psnr']:.2f}  SSIM {result['ssim']:.4f}  LPIPS {lpips}")
+    return 0
+
+
+def _cmd_render(args: argparse.Namespace) -> int:
+    import csv
+
+    import imageio.v3 as iio
+    import torch
+
+    from moegs.metrics import psnr
+    from moegs.train.evaluate import render_view
+
+    run, meta, scene, expert = _load_run(args.run)
+    out = Path(args.out) if args.out else run / "renders"
+    out.mkdir(parents=True, exist_ok=True)
+    frames, rows = [], []
+    with torch.no_grad():
+        for i, view in enumerate(scene.test):
+            rgb, _, _ = render_view(expert, view.camera, scene.background, meta["train"]["backend"])
+            image = (rgb.clamp(0, 1) * 255).round().to(torch.uint8).cpu().numpy()
+            iio.imwrite(out / f"{i:05d}.png", image)
+            frames.append(image)
+            rows.append({"index": i, "key": view.key, "time": view.camera.time,
+                         "psnr": float(psnr(rgb, view.image()))})
+    with open(out / "psnr.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    iio.imwrite(out / "video.mp4", frames, fps=args.fps, codec="libx264", macro_block_size=1)
+    print(f"{len(frames)} test views -> {out} (PNGs, video.mp4, psnr.csv)")
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    import torch
+
+    from moegs.io import export_ply
+
+    run, _, _, expert = _load_run(args.run)
+    with torch.no_grad():
+        path = export_ply(expert.frame(args.time), args.out or run / f"point_cloud_t{args.time:.3f}.ply")
+    print(f"Gaussians at t={args.time} -> {path}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="moegs", description="Mixture-of-Experts dynamic Gaussian Splatting")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    sub.add_parser("list", help="registered experts and the scenes found under the data root")
+
+    p = sub.add_parser("train", help="train one expert on one scene")
+    p.add_argument("--expert", required=True, help="registry name (see `moegs list`)")
+    p.add_argument("--scene", required=True, help="<dataset>:<scene>, e.g. dnerf:mutant")
+    p.add_argument("--preset", default="quick", help="config preset: quick (CPU minutes) or paper")
+    p.add_argument("--out", help="run folder (default runs/<expert>_<scene>_<preset>_s<seed>)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--iterations", type=int, help="override the preset's number of iterations")
+    p.add_argument("--resolution-scale", type=float, help="override the preset's image scale")
+    p.add_argument("--no-resume", action="store_true", help="start over even if the run folder has a checkpoint")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("eval", help="evaluate a trained run on its test views")
+    p.add_argument("run", help="run folder written by `moegs train`")
+    p.add_argument("--profile", default="moegs", help="metric profile: moegs (paper conventions) or clean")
+
+    p = sub.add_parser("render", help="render the test views to PNGs, an mp4 and a per-view PSNR csv")
+    p.add_argument("run")
+    p.add_argument("--out", help="output folder (default <run>/renders)")
+    p.add_argument("--fps", type=int, default=10)
+
+    p = sub.add_parser("export", help="write the Gaussians at one time as a 3DGS PLY")
+    p.add_argument("run")
+    p.add_argument("--time", type=float, default=0.0, help="normalised time in [0, 1]")
+    p.add_argument("--out", help="PLY path (default <run>/point_cloud_t<time>.ply)")
+    return parser
+
+
+_COMMANDS = {"list": _cmd_list, "train": _cmd_train, "eval": _cmd_eval, "render": _cmd_render,
+             "export": _cmd_export}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return _COMMANDS[args.command](args)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"moegs {args.command}: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,50 @@
+"""``moegs`` command line: a light ``list`` and an end-to-end smoke run on a generated scene."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from moegs.cli import main
+
+SCENE = "synthetic:dnerf_like"  # generated on demand (~3 s), needs no staged data
+
+
+def test_list_imports_no_expert_renderer_or_loader():
+    code = ("import sys; from moegs.cli import main; main(['list']); "
+            "heavy = [m for m in sys.modules if m.startswith(('moegs.render', 'moegs.experts.', 'moegs.train', "
+            "'moegs.data.dnerf', 'moegs.metrics'))]; assert not heavy, heavy")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "static" in done.stdout and "mcmc" in done.stdout and "dnerf" in done.stdout
+
+
+def test_unknown_expert_lists_valid_names(capsys):
+    assert main(["train", "--expert", "nope", "--scene", SCENE]) == 2
+    err = capsys.readouterr().err
+    assert "unknown expert 'nope'; registered experts:" in err and "mcmc" in err and "static" in err
+
+
+@pytest.mark.slow
+def test_train_eval_render_export(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("MOEGS_CACHE", str(tmp_path / "cache"))
+    run = tmp_path / "run"
+    assert main(["train", "--expert", "static", "--scene", SCENE, "--iterations", "4", "--resolution-scale", "0.4",
+                 "--out", str(run), "--quiet", "--seed", "1"]) == 0
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["completed"] and metrics["step"] == 4 and metrics["stand_in"]
+    assert json.loads((run / "config.json").read_text())["train"]["seed"] == 1
+
+    assert main(["eval", str(run), "--profile", "clean"]) == 0
+    assert json.loads((run / "eval-clean.json").read_text())["psnr"] == pytest.approx(metrics["test"]["psnr"],
+                                                                                        abs=1.0)
+    assert main(["render", str(run)]) == 0
+    renders = run / "renders"
+    assert (renders / "video.mp4").stat().st_size > 0 and (renders / "00000.png").is_file()
+    assert len((renders / "psnr.csv").read_text().splitlines()) == 1 + metrics["test"]["num_views"]
+    assert main(["export", str(run), "--time", "0.5", "--out", str(tmp_path / "g.ply")]) == 0
+    assert (tmp_path / "g.ply").stat().st_size > 0
+    capsys.readouterr()
+    assert main(["eval", str(tmp_path)]) == 2
+    assert "is not a training run (no config.json)" in capsys.readouterr().err
