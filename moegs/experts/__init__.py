@@ -26,6 +26,12 @@ _REGISTRY: dict[str, ExpertSpec] = {
                    "3DGS without deformation, trained on all frames (baseline)"),
         ExpertSpec("mcmc", "moegs.experts.mcmc:MCMCExpert",
                    "3DGS-MCMC trained per frame: one static model per time step"),
+        ExpertSpec("deformable", "moegs.experts.deformable:DeformableExpert",
+                   "Deformable 3D Gaussians (Yang et al. 2024): MLP on PE(x), PE(t) deforms canonical 3DGS"),
+        ExpertSpec("grid4d", "moegs.experts.grid4d:Grid4DExpert",
+                   "Grid4D (Xu et al. 2024): 4D decomposed hash grids + directional attention MLP"),
+        ExpertSpec("fourdgs", "moegs.experts.fourdgs:FourDGSExpert",
+                   "4D Gaussian Splatting (Wu et al. 2024): HexPlane + small MLP, coarse static stage"),
     )
 }
 

@@ -1,0 +1,48 @@
+"""Shared pieces of the canonical-space deformation experts (DeformableGS, Grid4D, 4DGaussians).
+
+Each keeps 3DGS Gaussians in a canonical space (the ``static`` expert's parameters, learning rates and
+densification) and adds a deformation field queried at time ``t``; for a first, static phase the
+canonical Gaussians are rendered as they are.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from moegs.data.scene import Scene
+from moegs.experts.gaussian_params import init_splats
+from moegs.experts.static import StaticConfig, StaticExpert, scene_points, thin_points
+
+QUICK_ITERATIONS = 600  # quick presets share the static baseline's budget (StaticConfig.quick)
+QUICK_STATIC_ITERATIONS = 150  # quick: the 3000-iteration static phase -> a quarter of the short run
+
+
+class DeformingExpert(StaticExpert):
+    """A static 3DGS expert whose ``frame`` deforms the canonical Gaussians once ``deforming``."""
+
+    def __init__(self, config: StaticConfig, splats: nn.ParameterDict, spatial_lr_scale: float) -> None:
+        super().__init__(config, splats, spatial_lr_scale)
+        self.step = 0
+
+    @staticmethod
+    def canonical(scene: Scene, config: StaticConfig) -> tuple[nn.ParameterDict, float]:
+        """Canonical Gaussians from the scene's points and the position lr scale (extent when None)."""
+        points = thin_points(scene_points(scene), config.max_init_points, config.train.seed)
+        splats = init_splats(points, config.sh_degree, config.init_opacity, config.init_scale)
+        scale = config.spatial_lr_scale if config.spatial_lr_scale is not None else scene.extent
+        return splats, scale
+
+    @property
+    def deforming(self) -> bool:
+        """Whether the deformation field acts at the current step."""
+        raise NotImplementedError
+
+    def on_step(self, step: int) -> bool:
+        self.step = step
+        return super().on_step(step)
+
+    def time_column(self, t: float) -> Tensor:
+        """``[N, 1]`` filled with ``t``, on the Gaussians' device."""
+        means = self.splats["means"]
+        return torch.full((means.shape[0], 1), float(t), dtype=means.dtype, device=means.device)
