@@ -5,6 +5,7 @@
     moegs eval runs/static-mutant --profile clean
     moegs render runs/static-mutant            # test views -> PNGs, video.mp4, psnr.csv
     moegs export runs/static-mutant --time 0.5 --out mutant.ply
+    moegs compare --experts all --scene panoptic:basketball --preset quick   # one table, all experts
 
 Heavy modules (experts, rasterizer, loaders) are imported inside the commands, so ``moegs list``
 and ``--help`` stay fast.
@@ -74,13 +75,17 @@ def _cmd_train(args: argparse.Namespace) -> int:
     config = replace(config, train=replace(config.train, **overrides))
     scene = _load_scene(args.scene, config.train.resolution_scale)
     print(scene.summary())
-    out = Path(args.out or Path("runs") / f"{args.expert}_{args.scene.replace(':', '_')}_{args.preset}_s{args.seed}")
+    out = Path(
+        args.out or Path("runs") / f"{args.expert}_{args.scene.replace(':', '_')}_{args.preset}_s{args.seed}"
+    )
     expert = cls.from_scene(scene, config)
     result = train(expert, scene, out_dir=out, resume=not args.no_resume, progress=not args.quiet)
     test = result["test"] or {}
-    print(f"{args.expert} on {scene.name}: {result['num_gaussians']} Gaussians, "
-          f"{result['train_seconds']:.1f} s training, test PSNR {test.get('psnr', float('nan')):.2f} "
-          f"SSIM {test.get('ssim', float('nan')):.4f} -> {out}")
+    print(
+        f"{args.expert} on {scene.name}: {result['num_gaussians']} Gaussians, "
+        f"{result['train_seconds']:.1f} s training, test PSNR {test.get('psnr', float('nan')):.2f} "
+        f"SSIM {test.get('ssim', float('nan')):.4f} -> {out}"
+    )
     return 0
 
 
@@ -92,8 +97,10 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     result = evaluate(expert, scene.test, scene.background, args.profile, meta["train"]["backend"])
     write_json(run / f"eval-{args.profile}.json", result)
     lpips = "n/a" if result["lpips"] is None else f"{result['lpips']:.4f}"
-    print(f"{meta['expert']} on {scene.name} ({result['num_views']} test views, profile {args.profile}): "
-          f"PSNR {result['psnr']:.2f}  SSIM {result['ssim']:.4f}  LPIPS {lpips}")
+    print(
+        f"{meta['expert']} on {scene.name} ({result['num_views']} test views, profile {args.profile}): "
+        f"PSNR {result['psnr']:.2f}  SSIM {result['ssim']:.4f}  LPIPS {lpips}"
+    )
     return 0
 
 
@@ -116,8 +123,14 @@ def _cmd_render(args: argparse.Namespace) -> int:
             image = (rgb.clamp(0, 1) * 255).round().to(torch.uint8).cpu().numpy()
             iio.imwrite(out / f"{i:05d}.png", image)
             frames.append(image)
-            rows.append({"index": i, "key": view.key, "time": view.camera.time,
-                         "psnr": float(psnr(rgb, view.image()))})
+            rows.append(
+                {
+                    "index": i,
+                    "key": view.key,
+                    "time": view.camera.time,
+                    "psnr": float(psnr(rgb, view.image())),
+                }
+            )
     with open(out / "psnr.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
@@ -139,8 +152,16 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from moegs import compare
+
+    return compare.main(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="moegs", description="Mixture-of-Experts dynamic Gaussian Splatting")
+    parser = argparse.ArgumentParser(
+        prog="moegs", description="Mixture-of-Experts dynamic Gaussian Splatting"
+    )
     sub = parser.add_subparsers(dest="command", required=True)
 
     sub.add_parser("list", help="registered experts and the scenes found under the data root")
@@ -153,7 +174,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--iterations", type=int, help="override the preset's number of iterations")
     p.add_argument("--resolution-scale", type=float, help="override the preset's image scale")
-    p.add_argument("--no-resume", action="store_true", help="start over even if the run folder has a checkpoint")
+    p.add_argument(
+        "--no-resume", action="store_true", help="start over even if the run folder has a checkpoint"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("eval", help="evaluate a trained run on its test views")
@@ -169,11 +192,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run")
     p.add_argument("--time", type=float, default=0.0, help="normalised time in [0, 1]")
     p.add_argument("--out", help="PLY path (default <run>/point_cloud_t<time>.ply)")
+
+    p = sub.add_parser("compare", help="train and evaluate several experts on one scene; per-expert table")
+    from moegs.compare import add_arguments
+
+    add_arguments(p)
     return parser
 
 
-_COMMANDS = {"list": _cmd_list, "train": _cmd_train, "eval": _cmd_eval, "render": _cmd_render,
-             "export": _cmd_export}
+_COMMANDS = {
+    "list": _cmd_list,
+    "train": _cmd_train,
+    "eval": _cmd_eval,
+    "render": _cmd_render,
+    "export": _cmd_export,
+}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -76,7 +76,8 @@ class ExpertConfig:
     def from_preset(cls, name: str) -> ExpertConfig:
         presets = cls.presets()
         if name not in presets:
-            raise ValueError(f"unknown preset {name!r} for {cls.__name__}; valid presets: {', '.join(presets)}")
+            valid = ", ".join(presets)
+            raise ValueError(f"unknown preset {name!r} for {cls.__name__}; valid presets: {valid}")
         return presets[name]()
 
 
@@ -95,7 +96,9 @@ class Expert(nn.Module, metaclass=abc.ABCMeta):
     config_class: ClassVar[type[ExpertConfig]]
     """The config dataclass (an ``ExpertConfig``)."""
 
-    def __init__(self, config: ExpertConfig, splats: nn.ParameterDict, fields: nn.Module | None = None) -> None:
+    def __init__(
+        self, config: ExpertConfig, splats: nn.ParameterDict, fields: nn.Module | None = None
+    ) -> None:
         super().__init__()
         self.config = config
         self.splats = splats

@@ -73,7 +73,9 @@ def init_splats(
     if init_scale <= 0:
         raise ValueError(f"init_scale must be positive, got {init_scale}")
     if len(points) < 2:
-        raise ValueError(f"init_splats needs at least 2 points for the nearest-neighbour scale, got {len(points)}")
+        raise ValueError(
+            f"init_splats needs at least 2 points for the nearest-neighbour scale, got {len(points)}"
+        )
     xyz = points.xyz.to(torch.float32)
     n = xyz.shape[0]
     params = {

@@ -58,14 +58,15 @@ class MCMCConfig(StaticConfig):
             num_models=4,  # quick: 150 D-NeRF frames -> 4 bins of consecutive times (ours)
             max_init_points=1000,  # quick: 1k initial points per model (CPU rasterizer cost)
             means_lr_max_steps=iterations,  # quick: decay over the whole short run
-            strategy=MCMCStrategy(cap_max=3000, refine_from=50, refine_until=250, refine_every=25,
-                                  group_key=MODEL_KEY),  # quick: 3DGS-MCMC 500/25k/100 compressed 10-100x
+            strategy=MCMCStrategy(
+                cap_max=3000, refine_from=50, refine_until=250, refine_every=25, group_key=MODEL_KEY
+            ),  # quick: 3DGS-MCMC 500/25k/100 compressed 10-100x
             train=TrainConfig(iterations=iterations, lambda_dssim=0.2, resolution_scale=QUICK_RESOLUTION),
         )
 
 
 def key_times(times: Tensor, num_models: int | None) -> Tensor:
-    """``[M]`` key time of each model: the sorted distinct times, or the mean of ``num_models`` bins of them."""
+    """``[M]`` key time of each model: the sorted distinct times, or the means of ``num_models`` bins."""
     if num_models is None or num_models >= len(times):
         return times.clone()
     if num_models < 1:
@@ -79,8 +80,9 @@ class MCMCExpert(StaticExpert):
     name = "mcmc"
     config_class = MCMCConfig
 
-    def __init__(self, config: MCMCConfig, splats: nn.ParameterDict, spatial_lr_scale: float,
-                 times: Tensor) -> None:
+    def __init__(
+        self, config: MCMCConfig, splats: nn.ParameterDict, spatial_lr_scale: float, times: Tensor
+    ) -> None:
         super().__init__(config, splats, spatial_lr_scale)
         self.register_buffer("key_times", times)  # [M]
 
@@ -91,7 +93,9 @@ class MCMCExpert(StaticExpert):
         if cloud.times is not None:
             near = (cloud.times - key).abs()
             keep = near == near.min()
-            cloud = PointCloud(cloud.xyz[keep], cloud.rgb[keep], f"{cloud.source} at t={key:.3f}", cloud.times[keep])
+            cloud = PointCloud(
+                cloud.xyz[keep], cloud.rgb[keep], f"{cloud.source} at t={key:.3f}", cloud.times[keep]
+            )
         return thin_points(cloud, config.max_init_points, config.train.seed)
 
     @classmethod
@@ -101,13 +105,19 @@ class MCMCExpert(StaticExpert):
         times = key_times(scene.times, config.num_models)
         parts = []
         for m, key in enumerate(times.tolist()):
-            splats = init_splats(cls._model_points(scene, config, key), config.sh_degree, config.init_opacity,
-                                 config.init_scale)
+            splats = init_splats(
+                cls._model_points(scene, config, key),
+                config.sh_degree,
+                config.init_opacity,
+                config.init_scale,
+            )
             parts.append({**splats, MODEL_KEY: torch.full((splats["means"].shape[0],), m, dtype=torch.long)})
-        joined = nn.ParameterDict({
-            k: nn.Parameter(torch.cat([p[k].detach() for p in parts]), requires_grad=k != MODEL_KEY)
-            for k in parts[0]
-        })
+        joined = nn.ParameterDict(
+            {
+                k: nn.Parameter(torch.cat([p[k].detach() for p in parts]), requires_grad=k != MODEL_KEY)
+                for k in parts[0]
+            }
+        )
         scale = config.spatial_lr_scale if config.spatial_lr_scale is not None else scene.extent
         return cls(config, joined, scale, times)
 

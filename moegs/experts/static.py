@@ -34,7 +34,7 @@ class StaticConfig(ExpertConfig):
     init_scale: float = 1.0
     """Multiplier of the 3-NN initial scale (3DGS 1.0)."""
     max_init_points: int | None = None
-    """Keep at most this many of the scene's initial points (random subset, ``train.seed``); None keeps all."""
+    """Keep at most this many of the scene's initial points (random subset, ``train.seed``); None: all."""
     spatial_lr_scale: float | None = None
     """Multiplier of the position learning rates; None = the scene extent (3DGS ``cameras_extent``)."""
     means_lr: float = 1.6e-4
@@ -76,8 +76,10 @@ class StaticConfig(ExpertConfig):
 def scene_points(scene: Scene) -> PointCloud:
     """The scene's initial points, or ``ValueError`` saying how to get some."""
     if scene.points is None:
-        raise ValueError(f"scene {scene.name!r} has no initial points; load it with points "
-                         "(e.g. D-NeRF num_points > 0) or build them with moegs.data.points")
+        raise ValueError(
+            f"scene {scene.name!r} has no initial points; load it with points "
+            "(e.g. D-NeRF num_points > 0) or build them with moegs.data.points"
+        )
     return scene.points
 
 
@@ -119,8 +121,13 @@ class StaticExpert(Expert):
     def param_groups(self) -> list[ParamGroup]:
         c, s = self.config, self.spatial_lr_scale
         return [
-            ParamGroup("means", [self.splats["means"]], c.means_lr * s, lr_final=c.means_lr_final * s,
-                       max_steps=c.means_lr_max_steps),
+            ParamGroup(
+                "means",
+                [self.splats["means"]],
+                c.means_lr * s,
+                lr_final=c.means_lr_final * s,
+                max_steps=c.means_lr_max_steps,
+            ),
             ParamGroup("sh0", [self.splats["sh0"]], c.sh0_lr),
             ParamGroup("shN", [self.splats["shN"]], c.shN_lr),
             ParamGroup("opacities", [self.splats["opacities"]], c.opacities_lr),

@@ -81,7 +81,9 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
     with safe_open(str(path), framework="pt", device=str(device)) as f:
         meta = (f.metadata() or {}).get(_META_KEY)
         if meta is None:
-            raise ValueError(f"{path} is a safetensors file but not a moegs checkpoint (no '{_META_KEY}' metadata)")
+            raise ValueError(
+                f"{path} is a safetensors file but not a moegs checkpoint (no '{_META_KEY}' metadata)"
+            )
         tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118 - safe_open has no iterator
     return _join(json.loads(meta), tensors)
 

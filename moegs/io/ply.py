@@ -72,7 +72,9 @@ def read_ply(path: str | Path) -> GaussianFrame:
         return torch.from_numpy(np.asarray(vertex[name], np.float32))
 
     def cols(prefix: str, count: int) -> torch.Tensor:
-        return torch.stack([column(f"{prefix}{i}") for i in range(count)], dim=1) if count else torch.zeros(n, 0)
+        return (
+            torch.stack([column(f"{prefix}{i}") for i in range(count)], dim=1) if count else torch.zeros(n, 0)
+        )
 
     n = len(vertex.data)
     rest_count = len([p for p in names if p.startswith("f_rest_")])

@@ -23,8 +23,9 @@ CHECKPOINT_NAME = "checkpoint.safetensors"
 FORMAT = 1
 
 
-def training_state(expert: Expert, step: int, optimizers: dict, strategy_state: dict, sampler: dict,
-                   history: list[float]) -> dict[str, Any]:
+def training_state(
+    expert: Expert, step: int, optimizers: dict, strategy_state: dict, sampler: dict, history: list[float]
+) -> dict[str, Any]:
     """The state tree saved by the training loop after iteration ``step``."""
     return {
         "format": FORMAT,
@@ -45,8 +46,9 @@ def restore_model(expert: Expert, model: dict[str, torch.Tensor]) -> None:
         saved = model.get(f"splats.{key}")
         if saved is None:
             raise KeyError(f"checkpoint has no 'splats.{key}'; it was written by another expert version")
-        expert.splats[key] = nn.Parameter(saved.to(param.device, param.dtype).clone(),
-                                          requires_grad=param.requires_grad)
+        expert.splats[key] = nn.Parameter(
+            saved.to(param.device, param.dtype).clone(), requires_grad=param.requires_grad
+        )
     expert.load_state_dict(model, strict=True)
 
 

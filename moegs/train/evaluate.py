@@ -11,8 +11,13 @@ from moegs.experts.base import Expert
 from moegs.metrics import evaluate_images
 
 
-def render_view(expert: Expert, camera: Camera, background: Tensor | None, backend: str = "auto",
-                return_stats: bool = False):
+def render_view(
+    expert: Expert,
+    camera: Camera,
+    background: Tensor | None,
+    backend: str = "auto",
+    return_stats: bool = False,
+):
     """``(rgb [H, W, 3], RenderOutput, frame)`` of ``expert`` at the camera's time (with gradients)."""
     return expert.render(camera, background, backend, return_stats)
 
@@ -28,8 +33,13 @@ def eval_views(views: list[View], max_views: int | None) -> list[View]:
 
 
 @torch.no_grad()
-def evaluate(expert: Expert, views: list[View], background: Tensor | None, profile: str = "moegs",
-             backend: str = "auto") -> dict:
+def evaluate(
+    expert: Expert,
+    views: list[View],
+    background: Tensor | None,
+    profile: str = "moegs",
+    backend: str = "auto",
+) -> dict:
     """Mean PSNR / SSIM / LPIPS over ``views`` plus the per-view values.
 
     Returns:
@@ -43,12 +53,20 @@ def evaluate(expert: Expert, views: list[View], background: Tensor | None, profi
         rgb, _, _ = render_view(expert, view.camera, background, backend)
         scores = evaluate_images(rgb, view.image(), profile)
         unavailable, prof = scores["lpips_unavailable"], scores["profile"]
-        per_view.append({"key": view.key, "time": view.camera.time,
-                         **{k: scores[k] for k in ("psnr", "ssim", "lpips")}})
+        per_view.append(
+            {"key": view.key, "time": view.camera.time, **{k: scores[k] for k in ("psnr", "ssim", "lpips")}}
+        )
 
     def mean(key: str) -> float | None:
         values = [v[key] for v in per_view]
         return None if any(x is None for x in values) else sum(values) / len(values)
 
-    return {"psnr": mean("psnr"), "ssim": mean("ssim"), "lpips": mean("lpips"), "lpips_unavailable": unavailable,
-            "profile": prof, "num_views": len(views), "per_view": per_view}
+    return {
+        "psnr": mean("psnr"),
+        "ssim": mean("ssim"),
+        "lpips": mean("lpips"),
+        "lpips_unavailable": unavailable,
+        "profile": prof,
+        "num_views": len(views),
+        "per_view": per_view,
+    }

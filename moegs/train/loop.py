@@ -44,15 +44,17 @@ class NonFiniteError(FloatingPointError):
 
 
 def _check_finite(step: int, what: str, tensors: dict[str, torch.Tensor | None], last_good: str) -> None:
-    """Raise ``NonFiniteError`` naming the first tensor holding NaN/Inf (one fused test when all are finite)."""
+    """Raise ``NonFiniteError`` naming the first tensor holding NaN/Inf (one fused test if all finite)."""
     present = {k: v for k, v in tensors.items() if v is not None and v.is_floating_point()}
     if not present or torch.stack([v.detach().sum().float() for v in present.values()]).isfinite().all():
         return  # a finite sum of finite values; NaN/Inf (or an overflowing sum) goes on to the exact test
     for name, value in present.items():
         if not torch.isfinite(value).all():
             bad = int((~torch.isfinite(value)).sum())
-            raise NonFiniteError(f"step {step}: {what} {name} has {bad} NaN/Inf value(s) of {value.numel()}; "
-                                 f"training stopped. {last_good}")
+            raise NonFiniteError(
+                f"step {step}: {what} {name} has {bad} NaN/Inf value(s) of {value.numel()}; "
+                f"training stopped. {last_good}"
+            )
 
 
 class _Run:
@@ -76,8 +78,17 @@ class _Run:
 
     # -- checkpoints ------------------------------------------------------------------------------
     def save(self, path: Path) -> None:
-        save_checkpoint(path, training_state(self.expert, self.step, self.optimizers.state_dict(),
-                                             self.strategy_state, self.sampler.state_dict(), self.history))
+        save_checkpoint(
+            path,
+            training_state(
+                self.expert,
+                self.step,
+                self.optimizers.state_dict(),
+                self.strategy_state,
+                self.sampler.state_dict(),
+                self.history,
+            ),
+        )
         self.saved_step = self.step
         self.last_good = f"Last good checkpoint: {path} (step {self.step})."
 
@@ -119,8 +130,9 @@ class _Run:
             try:
                 rgb, out, frame = render_view(expert, cam, self.scene.background, config.backend, needs_stats)
             except FloatingPointError as err:  # the rasterizer names the non-finite field of the frame
-                raise NonFiniteError(f"step {step}: view {view.key}: {err}; training stopped. {self.last_good}") \
-                    from err
+                raise NonFiniteError(
+                    f"step {step}: view {view.key}: {err}; training stopped. {self.last_good}"
+                ) from err
             target = view.image()
             view_loss = photometric(rgb, target, config.lambda_dssim) + expert.regularization(step, frame)
             extra = expert.observe(step, view, rgb, target, out)
@@ -129,8 +141,13 @@ class _Run:
             _check_finite(step, "loss of view", {view.key: view_loss.detach()}, self.last_good)
             loss = loss + view_loss
             if needs_stats:
-                info["renders"].append({**{k: out.info[k] for k in ("radii", "visible", "means2d")},
-                                        "width": cam.width, "height": cam.height})
+                info["renders"].append(
+                    {
+                        **{k: out.info[k] for k in ("radii", "visible", "means2d")},
+                        "width": cam.width,
+                        "height": cam.height,
+                    }
+                )
         loss = loss / len(views)
         loss.backward()
         _check_finite(step, "gradient of", {n: p.grad for n, p in expert.named_parameters()}, self.last_good)
@@ -140,7 +157,9 @@ class _Run:
         if step < config.iterations:
             self.optimizers.step()
             if strategy:
-                strategy.step_post_optimizer(expert.splats, self.splat_optimizers(), self.strategy_state, step, info)
+                strategy.step_post_optimizer(
+                    expert.splats, self.splat_optimizers(), self.strategy_state, step, info
+                )
         self.optimizers.zero_grad()
         _check_finite(step, "parameter", dict(expert.named_parameters()), self.last_good)
         return float(loss.detach())
@@ -188,15 +207,29 @@ def train(
         run.resume(ckpt)
         resumed_from = run.step
     if out is not None:
-        write_json(out / "config.json", {"expert": expert.name, "scene": scene.name, "stand_in": scene.stand_in,
-                                         "config": to_dict(expert.config), "train": to_dict(config)})
+        write_json(
+            out / "config.json",
+            {
+                "expert": expert.name,
+                "scene": scene.name,
+                "stand_in": scene.stand_in,
+                "config": to_dict(expert.config),
+                "train": to_dict(config),
+            },
+        )
 
     last = config.iterations if stop_after is None else min(stop_after, config.iterations)
     test_views = eval_views(scene.test, config.max_eval_views)
     evaluations, seconds = [], 0.0
     expert.train()
-    bar = tqdm(range(run.step + 1, last + 1), initial=run.step, total=config.iterations, disable=not progress,
-               desc=f"{expert.name} on {scene.name}", dynamic_ncols=True)
+    bar = tqdm(
+        range(run.step + 1, last + 1),
+        initial=run.step,
+        total=config.iterations,
+        disable=not progress,
+        desc=f"{expert.name} on {scene.name}",
+        dynamic_ncols=True,
+    )
     for step in bar:
         start = time.perf_counter()
         run.history.append(run.iteration(step))
@@ -207,8 +240,14 @@ def train(
         if ckpt is not None and config.checkpoint_every and step % config.checkpoint_every == 0:
             run.save(ckpt)
         if config.eval_every and step % config.eval_every == 0 and step < config.iterations and test_views:
-            evaluations.append({"step": step, "psnr": evaluate(expert, test_views, scene.background,
-                                                               config.metric_profile, config.backend)["psnr"]})
+            evaluations.append(
+                {
+                    "step": step,
+                    "psnr": evaluate(
+                        expert, test_views, scene.background, config.metric_profile, config.backend
+                    )["psnr"],
+                }
+            )
             expert.train()
     bar.close()
     if ckpt is not None and run.saved_step != run.step:
@@ -221,11 +260,19 @@ def train(
         test = evaluate(expert, test_views, scene.background, config.metric_profile, config.backend)
     steps_run = last - (resumed_from or 0)
     result = {
-        "expert": expert.name, "scene": scene.name, "stand_in": scene.stand_in, "completed": completed,
-        "step": run.step, "iterations": config.iterations, "num_gaussians": expert.num_gaussians,
-        "train_seconds": seconds, "seconds_per_step": seconds / steps_run if steps_run > 0 else None,
-        "final_loss": run.history[-1] if run.history else None, "resumed_from": resumed_from,
-        "test": test, "evaluations": evaluations,
+        "expert": expert.name,
+        "scene": scene.name,
+        "stand_in": scene.stand_in,
+        "completed": completed,
+        "step": run.step,
+        "iterations": config.iterations,
+        "num_gaussians": expert.num_gaussians,
+        "train_seconds": seconds,
+        "seconds_per_step": seconds / steps_run if steps_run > 0 else None,
+        "final_loss": run.history[-1] if run.history else None,
+        "resumed_from": resumed_from,
+        "test": test,
+        "evaluations": evaluations,
     }
     if out is not None:
         write_json(out / "metrics.json", result)

@@ -28,12 +28,15 @@ class Optimizers:
         self.optimizers: dict[str, torch.optim.Optimizer] = {}
         for g in groups:
             if g.optimizer not in _OPTIMIZERS:
-                raise ValueError(f"param group {g.name!r}: unknown optimizer {g.optimizer!r}; "
-                                 f"valid: {', '.join(_OPTIMIZERS)}")
+                raise ValueError(
+                    f"param group {g.name!r}: unknown optimizer {g.optimizer!r}; "
+                    f"valid: {', '.join(_OPTIMIZERS)}"
+                )
             if not g.params:
                 raise ValueError(f"param group {g.name!r} has no parameters")
             self.optimizers[g.name] = _OPTIMIZERS[g.optimizer](
-                [{"params": list(g.params), "lr": g.lr}], lr=g.lr, betas=ADAM_BETAS, eps=g.eps)
+                [{"params": list(g.params), "lr": g.lr}], lr=g.lr, betas=ADAM_BETAS, eps=g.eps
+            )
 
     def for_splats(self, splats: nn.ParameterDict) -> dict[str, torch.optim.Optimizer]:
         """Map each trainable per-Gaussian key to the optimiser holding it (for strategy ops).
@@ -42,14 +45,19 @@ class Optimizers:
         """
         out = {}
         for key, param in splats.items():
-            holders = [name for name, opt in self.optimizers.items()
-                       if any(p is param for p in opt.param_groups[0]["params"])]
+            holders = [
+                name
+                for name, opt in self.optimizers.items()
+                if any(p is param for p in opt.param_groups[0]["params"])
+            ]
             if not param.requires_grad:
                 if holders:
                     raise ValueError(f"splats[{key!r}] does not require grad but is in group(s) {holders}")
                 continue
             if len(holders) != 1:
-                raise ValueError(f"splats[{key!r}] must be in exactly one param group, found {holders or 'none'}")
+                raise ValueError(
+                    f"splats[{key!r}] must be in exactly one param group, found {holders or 'none'}"
+                )
             out[key] = self.optimizers[holders[0]]
         return out
 
@@ -75,6 +83,8 @@ class Optimizers:
 
     def load_state_dict(self, state: dict) -> None:
         if set(state) != set(self.optimizers):
-            raise ValueError(f"optimizer state has groups {sorted(state)}, the expert has {sorted(self.optimizers)}")
+            raise ValueError(
+                f"optimizer state has groups {sorted(state)}, the expert has {sorted(self.optimizers)}"
+            )
         for name, opt in self.optimizers.items():
             opt.load_state_dict(state[name])

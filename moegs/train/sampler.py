@@ -37,10 +37,15 @@ class ViewSampler:
         return batch
 
     def state_dict(self) -> dict:
-        return {"generator": self.generator.get_state(), "stacks": {g: list(s) for g, s in self.stacks.items()}}
+        return {
+            "generator": self.generator.get_state(),
+            "stacks": {g: list(s) for g, s in self.stacks.items()},
+        }
 
     def load_state_dict(self, state: dict) -> None:
         if set(state["stacks"]) != set(self.stacks):
-            raise ValueError(f"sampler state has view groups {sorted(state['stacks'])}, expected {sorted(self.stacks)}")
+            raise ValueError(
+                f"sampler state has view groups {sorted(state['stacks'])}, expected {sorted(self.stacks)}"
+            )
         self.generator.set_state(state["generator"])
         self.stacks = {int(g): list(s) for g, s in state["stacks"].items()}

@@ -13,8 +13,9 @@ import math
 from moegs.experts.base import ParamGroup
 
 
-def expon_lr(step: int, lr_init: float, lr_final: float, max_steps: int,
-             delay_steps: int = 0, delay_mult: float = 1.0) -> float:
+def expon_lr(
+    step: int, lr_init: float, lr_final: float, max_steps: int, delay_steps: int = 0, delay_mult: float = 1.0
+) -> float:
     """The 3DGS exponential learning rate at ``step`` (``step < 0`` gives 0, as in 3DGS)."""
     if max_steps <= 0:
         raise ValueError(f"max_steps must be positive, got {max_steps}")
@@ -26,7 +27,9 @@ def expon_lr(step: int, lr_init: float, lr_final: float, max_steps: int,
         raise ValueError("expon_lr interpolates in log space: lr_init and lr_final must both be > 0")
     delay = 1.0
     if delay_steps > 0:
-        delay = delay_mult + (1.0 - delay_mult) * math.sin(0.5 * math.pi * min(max(step / delay_steps, 0.0), 1.0))
+        delay = delay_mult + (1.0 - delay_mult) * math.sin(
+            0.5 * math.pi * min(max(step / delay_steps, 0.0), 1.0)
+        )
     t = min(max(step / max_steps, 0.0), 1.0)
     return delay * math.exp(math.log(lr_init) * (1.0 - t) + math.log(lr_final) * t)
 
@@ -39,5 +42,11 @@ def group_lr(group: ParamGroup, step: int) -> float:
     """
     if group.lr_final is None:
         return group.lr
-    return expon_lr(step - group.start_step, group.lr, group.lr_final, group.max_steps,
-                    group.lr_delay_steps, group.lr_delay_mult)
+    return expon_lr(
+        step - group.start_step,
+        group.lr,
+        group.lr_final,
+        group.max_steps,
+        group.lr_delay_steps,
+        group.lr_delay_mult,
+    )

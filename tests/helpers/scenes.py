@@ -18,20 +18,33 @@ def _truth(t: float) -> GaussianFrame:
     n = 40
     means = torch.randn(n, 3, generator=g) * 0.3
     means[:, 0] += 0.4 * t - 0.2
-    return GaussianFrame(means=means, quats=torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n, 1),
-                         scales=torch.full((n, 3), 0.15), opacities=torch.full((n,), 0.8),
-                         colors=torch.rand(n, 3, generator=g))
+    return GaussianFrame(
+        means=means,
+        quats=torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n, 1),
+        scales=torch.full((n, 3), 0.15),
+        opacities=torch.full((n,), 0.8),
+        colors=torch.rand(n, 3, generator=g),
+    )
 
 
 def _camera(index: int, count: int, size: int, t: float, frame: int) -> Camera:
     a = 2 * math.pi * index / count
     eye = torch.tensor([3.0 * math.cos(a), 3.0 * math.sin(a), 1.0])
-    return Camera(K=intrinsics(size, size, size / 2, size / 2), world_to_camera=look_at(eye, torch.zeros(3)),
-                  width=size, height=size, time=t, camera_id=index, frame=frame, name=f"cam{index}/{frame}")
+    return Camera(
+        K=intrinsics(size, size, size / 2, size / 2),
+        world_to_camera=look_at(eye, torch.zeros(3)),
+        width=size,
+        height=size,
+        time=t,
+        camera_id=index,
+        frame=frame,
+        name=f"cam{index}/{frame}",
+    )
 
 
-def tiny_scene(num_frames: int = 3, cameras: int = 4, size: int = 32, num_points: int = 200,
-               background: float = 1.0) -> Scene:
+def tiny_scene(
+    num_frames: int = 3, cameras: int = 4, size: int = 32, num_points: int = 200, background: float = 1.0
+) -> Scene:
     """``cameras`` training views per frame plus one test view per frame (between two training cameras)."""
     bg = torch.full((3,), background)
     train, test = [], []
@@ -44,8 +57,21 @@ def tiny_scene(num_frames: int = 3, cameras: int = 4, size: int = 32, num_points
             view = View(camera=cam, load_image=lambda im=image: im, key=f"tiny/{c}/{f}")
             (test if c == cameras else train).append(view)
     g = torch.Generator().manual_seed(5)
-    points = PointCloud(xyz=(torch.rand(num_points, 3, generator=g) - 0.5) * 1.6,
-                        rgb=torch.rand(num_points, 3, generator=g), source="tiny random")
-    return Scene(name="tiny", dataset="synthetic", train=train, test=test, num_frames=num_frames, background=bg,
-                 bbox=torch.tensor([[-0.8] * 3, [0.8] * 3]), extent=3.3, points=points, multiview=True,
-                 stand_in="unit-test scene")
+    points = PointCloud(
+        xyz=(torch.rand(num_points, 3, generator=g) - 0.5) * 1.6,
+        rgb=torch.rand(num_points, 3, generator=g),
+        source="tiny random",
+    )
+    return Scene(
+        name="tiny",
+        dataset="synthetic",
+        train=train,
+        test=test,
+        num_frames=num_frames,
+        background=bg,
+        bbox=torch.tensor([[-0.8] * 3, [0.8] * 3]),
+        extent=3.3,
+        points=points,
+        multiview=True,
+        stand_in="unit-test scene",
+    )

@@ -26,10 +26,14 @@ def test_nested_state_round_trip_is_bit_exact(tmp_path):
     assert back.keys() == state.keys()
     assert back["step"] == 12 and back["name"] == "static" and back["flags"] == [True, None, 1.5]
     assert set(back["by_index"]) == {0, 3} and back["by_index"][3] == "x"
-    for a, b in [(state["model"]["splats.means"], back["model"]["splats.means"]),
-                 (state["model"]["ids"], back["model"]["ids"]),
-                 (state["by_index"][0]["exp_avg"], back["by_index"][0]["exp_avg"]),
-                 (state["rng"], back["rng"]), (state["empty"], back["empty"]), (state["half"], back["half"])]:
+    for a, b in [
+        (state["model"]["splats.means"], back["model"]["splats.means"]),
+        (state["model"]["ids"], back["model"]["ids"]),
+        (state["by_index"][0]["exp_avg"], back["by_index"][0]["exp_avg"]),
+        (state["rng"], back["rng"]),
+        (state["empty"], back["empty"]),
+        (state["half"], back["half"]),
+    ]:
         assert a.dtype == b.dtype and torch.equal(a, b)
 
 

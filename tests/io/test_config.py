@@ -10,8 +10,10 @@ from moegs.io import from_dict, to_dict
 from moegs.train.strategy import ADCStrategy, MCMCStrategy
 
 
-@pytest.mark.parametrize("config", [StaticConfig.from_preset("quick"), StaticConfig.from_preset("paper"),
-                                    MCMCConfig.from_preset("quick")])
+@pytest.mark.parametrize(
+    "config",
+    [StaticConfig.from_preset("quick"), StaticConfig.from_preset("paper"), MCMCConfig.from_preset("quick")],
+)
 def test_round_trip_through_json(config):
     back = from_dict(type(config), json.loads(json.dumps(to_dict(config))))
     assert back == config
@@ -32,5 +34,7 @@ def test_unknown_keys_are_named():
 
 
 def test_presets_are_named():
-    with pytest.raises(ValueError, match="unknown preset 'fast' for StaticConfig; valid presets: paper, quick"):
+    with pytest.raises(
+        ValueError, match="unknown preset 'fast' for StaticConfig; valid presets: paper, quick"
+    ):
         StaticConfig.from_preset("fast")

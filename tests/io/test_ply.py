@@ -26,9 +26,12 @@ def test_layout_and_raw_values(tmp_path):
     path = export_ply(frame, tmp_path / "point_cloud.ply")
     vertex = PlyData.read(str(path))["vertex"]
     names = [p.name for p in vertex.properties]
-    expected = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-                + [f"f_rest_{i}" for i in range(45)] + ["opacity", "scale_0", "scale_1", "scale_2"]
-                + [f"rot_{i}" for i in range(4)])
+    expected = (
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+        + [f"f_rest_{i}" for i in range(45)]
+        + ["opacity", "scale_0", "scale_1", "scale_2"]
+        + [f"rot_{i}" for i in range(4)]
+    )
     assert names == expected
     assert all(p.val_dtype in ("f4", "float32") for p in vertex.properties)
 

@@ -13,12 +13,14 @@ from moegs.train.strategy import ADCStrategy
 
 def _params(scales, opacities):
     n = len(scales)
-    params = nn.ParameterDict({
-        "means": nn.Parameter(torch.zeros(n, 3)),
-        "scales": nn.Parameter(torch.log(torch.tensor(scales)).unsqueeze(1).repeat(1, 3)),
-        "quats": nn.Parameter(torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n, 1)),
-        "opacities": nn.Parameter(torch.logit(torch.tensor(opacities))),
-    })
+    params = nn.ParameterDict(
+        {
+            "means": nn.Parameter(torch.zeros(n, 3)),
+            "scales": nn.Parameter(torch.log(torch.tensor(scales)).unsqueeze(1).repeat(1, 3)),
+            "quats": nn.Parameter(torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n, 1)),
+            "opacities": nn.Parameter(torch.logit(torch.tensor(opacities))),
+        }
+    )
     optim = Optimizers([ParamGroup(k, [p], 0.01) for k, p in params.items()])
     return params, optim.for_splats(params)
 
@@ -42,8 +44,12 @@ def test_gradient_is_accumulated_in_ndc_units():
     torch.testing.assert_close(state["grad2d"], torch.tensor([1e-4, 2e-4, 0.0]))
     torch.testing.assert_close(state["count"], torch.tensor([1.0, 1.0, 0.0]))
     # a batch of two views: the mean loss halves each view's gradient, the strategy doubles it back
-    info = {"renders": [_render([[1e-6, 0.0]] * 3, [True, False, False]),
-                        _render([[1e-6, 0.0]] * 3, [True, True, False])]}
+    info = {
+        "renders": [
+            _render([[1e-6, 0.0]] * 3, [True, False, False]),
+            _render([[1e-6, 0.0]] * 3, [True, True, False]),
+        ]
+    }
     strategy.step_post_backward(params, opts, state, 2, info)
     torch.testing.assert_close(state["grad2d"], torch.tensor([1e-4 + 2e-4, 2e-4 + 1e-4, 0.0]))
     torch.testing.assert_close(state["count"], torch.tensor([3.0, 2.0, 0.0]))
@@ -72,7 +78,9 @@ def test_large_gaussians_pruned_only_after_first_reset_interval():
         params, opts = _params([0.001, 0.5], [0.5, 0.5])
         strategy = ADCStrategy(densify_from=0, densify_every=10, reset_every=100, prune_world_scale=0.1)
         state = strategy.initialize_state(scene_scale=1.0)
-        strategy.step_post_backward(params, opts, state, step, {"renders": [_render([[0.0, 0.0]] * 2, [True] * 2)]})
+        strategy.step_post_backward(
+            params, opts, state, step, {"renders": [_render([[0.0, 0.0]] * 2, [True] * 2)]}
+        )
         return params["means"].shape[0]
 
     assert run(50) == 2
@@ -112,8 +120,13 @@ def test_frame_must_cover_every_gaussian():
     params, opts = _params([0.001] * 3, [0.5] * 3)
     strategy = ADCStrategy()
     with pytest.raises(ValueError, match="one projected mean per Gaussian: got 2, the expert has 3"):
-        strategy.step_post_backward(params, opts, strategy.initialize_state(1.0), 1,
-                                    {"renders": [_render([[0.0, 0.0]] * 2, [True] * 2)]})
+        strategy.step_post_backward(
+            params,
+            opts,
+            strategy.initialize_state(1.0),
+            1,
+            {"renders": [_render([[0.0, 0.0]] * 2, [True] * 2)]},
+        )
 
 
 def test_split_scale_divisor_default_matches_3dgs():

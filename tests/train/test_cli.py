@@ -12,9 +12,11 @@ SCENE = "synthetic:dnerf_like"  # generated on demand (~3 s), needs no staged da
 
 
 def test_list_imports_no_expert_renderer_or_loader():
-    code = ("import sys; from moegs.cli import main; main(['list']); "
-            "heavy = [m for m in sys.modules if m.startswith(('moegs.render', 'moegs.experts.', 'moegs.train', "
-            "'moegs.data.dnerf', 'moegs.metrics'))]; assert not heavy, heavy")
+    code = (
+        "import sys; from moegs.cli import main; main(['list']); "
+        "heavy = [m for m in sys.modules if m.startswith(('moegs.render', 'moegs.experts.', 'moegs.train', "
+        "'moegs.data.dnerf', 'moegs.metrics'))]; assert not heavy, heavy"
+    )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert "static" in done.stdout and "mcmc" in done.stdout and "dnerf" in done.stdout
@@ -30,15 +32,35 @@ def test_unknown_expert_lists_valid_names(capsys):
 def test_train_eval_render_export(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("MOEGS_CACHE", str(tmp_path / "cache"))
     run = tmp_path / "run"
-    assert main(["train", "--expert", "static", "--scene", SCENE, "--iterations", "4", "--resolution-scale", "0.4",
-                 "--out", str(run), "--quiet", "--seed", "1"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--expert",
+                "static",
+                "--scene",
+                SCENE,
+                "--iterations",
+                "4",
+                "--resolution-scale",
+                "0.4",
+                "--out",
+                str(run),
+                "--quiet",
+                "--seed",
+                "1",
+            ]
+        )
+        == 0
+    )
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["completed"] and metrics["step"] == 4 and metrics["stand_in"]
     assert json.loads((run / "config.json").read_text())["train"]["seed"] == 1
 
     assert main(["eval", str(run), "--profile", "clean"]) == 0
-    assert json.loads((run / "eval-clean.json").read_text())["psnr"] == pytest.approx(metrics["test"]["psnr"],
-                                                                                        abs=1.0)
+    assert json.loads((run / "eval-clean.json").read_text())["psnr"] == pytest.approx(
+        metrics["test"]["psnr"], abs=1.0
+    )
     assert main(["render", str(run)]) == 0
     renders = run / "renders"
     assert (renders / "video.mp4").stat().st_size > 0 and (renders / "00000.png").is_file()

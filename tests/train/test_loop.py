@@ -23,14 +23,20 @@ def scene():
 
 
 def _static(scene, **train_kw):
-    cfg = StaticConfig(strategy=ADCStrategy(densify_from=5, densify_every=10, densify_until=35, reset_every=20),
-                       means_lr_max_steps=ITERS, train=TrainConfig(iterations=ITERS, **train_kw))
+    cfg = StaticConfig(
+        strategy=ADCStrategy(densify_from=5, densify_every=10, densify_until=35, reset_every=20),
+        means_lr_max_steps=ITERS,
+        train=TrainConfig(iterations=ITERS, **train_kw),
+    )
     return StaticExpert.from_scene(scene, cfg)
 
 
 def _mcmc(scene, **train_kw):
-    cfg = MCMCConfig(strategy=MCMCStrategy(cap_max=150, refine_from=5, refine_every=10, group_key="model"),
-                     max_init_points=100, train=TrainConfig(iterations=ITERS, **train_kw))
+    cfg = MCMCConfig(
+        strategy=MCMCStrategy(cap_max=150, refine_from=5, refine_every=10, group_key="model"),
+        max_init_points=100,
+        train=TrainConfig(iterations=ITERS, **train_kw),
+    )
     return MCMCExpert.from_scene(scene, cfg)
 
 
@@ -68,8 +74,10 @@ def test_resume_continues_exactly(scene, make, tmp_path):
     r_res = train(resumed, scene, out_dir=tmp_path / "part", progress=False)
     assert r_res["resumed_from"] == 25 and r_res["completed"]
     _assert_same(_state(full), _state(resumed))
-    assert load_checkpoint(tmp_path / "full" / CHECKPOINT_NAME)["history"] == \
-        load_checkpoint(tmp_path / "part" / CHECKPOINT_NAME)["history"]
+    assert (
+        load_checkpoint(tmp_path / "full" / CHECKPOINT_NAME)["history"]
+        == load_checkpoint(tmp_path / "part" / CHECKPOINT_NAME)["history"]
+    )
     assert r_full["test"]["psnr"] == r_res["test"]["psnr"]
 
 
@@ -111,9 +119,13 @@ class _InfiniteGradient(StaticExpert):
 
 
 def test_non_finite_gradient_stops_with_clear_message(scene, tmp_path):
-    cfg = StaticConfig(strategy=ADCStrategy(densify_from=1000), train=TrainConfig(iterations=ITERS, checkpoint_every=5))
+    cfg = StaticConfig(
+        strategy=ADCStrategy(densify_from=1000), train=TrainConfig(iterations=ITERS, checkpoint_every=5)
+    )
     expert = _InfiniteGradient.from_scene(scene, cfg)
-    with pytest.raises(NonFiniteError, match=r"step 7: gradient of splats\.quats has 1 NaN/Inf value\(s\)") as err:
+    with pytest.raises(
+        NonFiniteError, match=r"step 7: gradient of splats\.quats has 1 NaN/Inf value\(s\)"
+    ) as err:
         train(expert, scene, out_dir=tmp_path, progress=False)
     assert f"Last good checkpoint: {tmp_path / CHECKPOINT_NAME} (step 5)" in str(err.value)
     assert load_checkpoint(tmp_path / CHECKPOINT_NAME)["step"] == 5

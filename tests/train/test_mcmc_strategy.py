@@ -15,8 +15,11 @@ from moegs.train.strategy.mcmc import binomial_table, relocation_update
 def _reference(o: float, s: float, n: int) -> tuple[float, float]:
     """The formula of the 3DGS-MCMC paper written out with math.comb."""
     new_o = 1.0 - (1.0 - o) ** (1.0 / n)
-    denom = sum(math.comb(i - 1, k) * (-1) ** k * new_o ** (k + 1) / math.sqrt(k + 1)
-                for i in range(1, n + 1) for k in range(i))
+    denom = sum(
+        math.comb(i - 1, k) * (-1) ** k * new_o ** (k + 1) / math.sqrt(k + 1)
+        for i in range(1, n + 1)
+        for k in range(i)
+    )
     return new_o, s * o / denom
 
 
@@ -41,7 +44,9 @@ def test_relocation_update_hand_values(o, n, o_new, s_ratio):
     assert new_o.item() == pytest.approx(o_new, abs=1e-6)
     torch.testing.assert_close(new_s, torch.tensor([[2.0, 1.0, 0.5]]) * s_ratio, rtol=1e-5, atol=0)
     ref_o, ref_s = _reference(o, 1.0, n)
-    assert new_o.item() == pytest.approx(ref_o, rel=1e-6) and new_s[0, 0].item() == pytest.approx(2 * ref_s, rel=1e-6)
+    assert new_o.item() == pytest.approx(ref_o, rel=1e-6) and new_s[0, 0].item() == pytest.approx(
+        2 * ref_s, rel=1e-6
+    )
 
 
 def test_relocation_update_clamps():
@@ -54,13 +59,17 @@ def test_relocation_update_clamps():
 
 def _params(opacities, models, means=None):
     n = len(opacities)
-    params = nn.ParameterDict({
-        "means": nn.Parameter(torch.arange(n, dtype=torch.float32)[:, None].repeat(1, 3) if means is None else means),
-        "scales": nn.Parameter(torch.full((n, 3), math.log(0.1))),
-        "quats": nn.Parameter(torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n, 1)),
-        "opacities": nn.Parameter(torch.logit(torch.tensor(opacities))),
-        "model": nn.Parameter(torch.tensor(models), requires_grad=False),
-    })
+    params = nn.ParameterDict(
+        {
+            "means": nn.Parameter(
+                torch.arange(n, dtype=torch.float32)[:, None].repeat(1, 3) if means is None else means
+            ),
+            "scales": nn.Parameter(torch.full((n, 3), math.log(0.1))),
+            "quats": nn.Parameter(torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(n, 1)),
+            "opacities": nn.Parameter(torch.logit(torch.tensor(opacities))),
+            "model": nn.Parameter(torch.tensor(models), requires_grad=False),
+        }
+    )
     optim = Optimizers([ParamGroup(k, [p], 0.01) for k, p in params.items() if k != "model"])
     return params, optim.for_splats(params)
 
@@ -131,4 +140,6 @@ def test_group_key_must_exist():
     params, opts = _params([0.5, 0.001], [0, 0])
     del params["model"]
     with pytest.raises(ValueError, match="group_key 'models' is not a splat entry"):
-        MCMCStrategy(refine_from=0, refine_every=1, group_key="models").step_post_backward(params, opts, {}, 1, {})
+        MCMCStrategy(refine_from=0, refine_every=1, group_key="models").step_post_backward(
+            params, opts, {}, 1, {}
+        )

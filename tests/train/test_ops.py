@@ -16,13 +16,15 @@ N = 5
 def _setup():
     """Five Gaussians with Adam state whose rows differ (row i got gradient i + 1)."""
     g = torch.Generator().manual_seed(0)
-    params = nn.ParameterDict({
-        "means": nn.Parameter(torch.randn(N, 3, generator=g)),
-        "scales": nn.Parameter(torch.log(torch.rand(N, 3, generator=g) + 0.1)),
-        "quats": nn.Parameter(torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(N, 1)),
-        "opacities": nn.Parameter(torch.logit(torch.linspace(0.1, 0.9, N))),
-        "sh0": nn.Parameter(torch.randn(N, 1, 3, generator=g)),
-    })
+    params = nn.ParameterDict(
+        {
+            "means": nn.Parameter(torch.randn(N, 3, generator=g)),
+            "scales": nn.Parameter(torch.log(torch.rand(N, 3, generator=g) + 0.1)),
+            "quats": nn.Parameter(torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(N, 1)),
+            "opacities": nn.Parameter(torch.logit(torch.linspace(0.1, 0.9, N))),
+            "sh0": nn.Parameter(torch.randn(N, 1, 3, generator=g)),
+        }
+    )
     optim = Optimizers([ParamGroup(k, [p], 0.01) for k, p in params.items()])
     rows = torch.arange(1.0, N + 1)
     for p in params.values():
@@ -93,9 +95,14 @@ def test_split_replaces_parents_by_children():
 def test_split_sample_distribution_follows_rotation():
     torch.manual_seed(0)
     q = torch.tensor([[math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)]])  # 90 deg about z
-    params = nn.ParameterDict({"means": nn.Parameter(torch.zeros(1, 3)),
-                               "scales": nn.Parameter(torch.log(torch.tensor([[1.0, 0.01, 0.01]]))),
-                               "quats": nn.Parameter(q), "opacities": nn.Parameter(torch.zeros(1))})
+    params = nn.ParameterDict(
+        {
+            "means": nn.Parameter(torch.zeros(1, 3)),
+            "scales": nn.Parameter(torch.log(torch.tensor([[1.0, 0.01, 0.01]]))),
+            "quats": nn.Parameter(q),
+            "opacities": nn.Parameter(torch.zeros(1)),
+        }
+    )
     ops.split(params, {}, torch.tensor([True]), samples=2000)
     spread = params["means"].detach().std(dim=0)
     assert spread[1] == pytest.approx(1.0, rel=0.1)  # the long local x axis now points along world y
@@ -138,7 +145,9 @@ def test_relocate_writes_sources_and_dead_slots():
     torch.testing.assert_close(params["means"][[2, 4]], before["means"][[2, 4]])
     m = _moments(opts, "means")[0]
     assert (m[0] == 0).all()  # the source's moments are zeroed (3dgs-mcmc)
-    torch.testing.assert_close(m[[1, 2, 3, 4]], m0[[1, 2, 3, 4]])  # dead slots keep theirs, as in the original
+    torch.testing.assert_close(
+        m[[1, 2, 3, 4]], m0[[1, 2, 3, 4]]
+    )  # dead slots keep theirs, as in the original
 
 
 def test_sample_add_appends_copies_of_sources():
@@ -179,5 +188,7 @@ def test_inject_noise_uses_full_covariance():
 def test_for_splats_reports_missing_group():
     params, _, _ = _setup()
     optim = Optimizers([ParamGroup("means", [params["means"]], 0.1)])
-    with pytest.raises(ValueError, match=r"splats\['opacities'\] must be in exactly one param group, found none"):
+    with pytest.raises(
+        ValueError, match=r"splats\['opacities'\] must be in exactly one param group, found none"
+    ):
         optim.for_splats(params)

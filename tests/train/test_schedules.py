@@ -16,7 +16,7 @@ LR0, LR1, STEPS = 1.6e-4, 1.6e-6, 30_000  # 3DGS position_lr_init / _final / _ma
     ("step", "expected"),
     [
         (0, 1.6e-4),
-        (3_000, 1.6e-4 * 100 ** -0.1),  # 10 % of the way in log space: 1.00953e-4
+        (3_000, 1.6e-4 * 100**-0.1),  # 10 % of the way in log space: 1.00953e-4
         (15_000, 1.6e-5),  # geometric mean
         (30_000, 1.6e-6),
         (45_000, 1.6e-6),  # held after max_steps
@@ -32,7 +32,7 @@ def test_expon_lr_delay_ramp():
     lerp = math.exp(math.log(0.01) * 0.05)
     expected = (0.01 + 0.99 * math.sin(math.pi / 4)) * lerp
     assert expon_lr(5, 1.0, 0.01, 100, delay_steps=10, delay_mult=0.01) == pytest.approx(expected)
-    assert expon_lr(20, 1.0, 0.01, 100, delay_steps=10, delay_mult=0.01) == pytest.approx(0.01 ** 0.2)
+    assert expon_lr(20, 1.0, 0.01, 100, delay_steps=10, delay_mult=0.01) == pytest.approx(0.01**0.2)
 
 
 def test_expon_lr_edge_cases():
@@ -54,8 +54,12 @@ def test_group_lr_constant_and_stage_offset():
 
 def test_optimizers_apply_schedule_and_eps():
     means, opac = torch.zeros(4, 3, requires_grad=True), torch.zeros(4, requires_grad=True)
-    opt = Optimizers([ParamGroup("means", [means], LR0, lr_final=LR1, max_steps=STEPS),
-                      ParamGroup("opacities", [opac], 0.05, optimizer="radam")])
+    opt = Optimizers(
+        [
+            ParamGroup("means", [means], LR0, lr_final=LR1, max_steps=STEPS),
+            ParamGroup("opacities", [opac], 0.05, optimizer="radam"),
+        ]
+    )
     rates = opt.set_step(15_000)
     assert rates == {"means": pytest.approx(1.6e-5), "opacities": 0.05}
     assert opt.optimizers["means"].param_groups[0]["lr"] == pytest.approx(1.6e-5)

@@ -77,16 +77,22 @@ class ADCStrategy(Strategy):
         for r in renders:
             means2d = r["means2d"]
             if means2d.shape[0] != n:
-                raise ValueError(f"ADCStrategy needs one projected mean per Gaussian: got {means2d.shape[0]}, "
-                                 f"the expert has {n} (frame() must return every Gaussian)")
+                raise ValueError(
+                    f"ADCStrategy needs one projected mean per Gaussian: got {means2d.shape[0]}, "
+                    f"the expert has {n} (frame() must return every Gaussian)"
+                )
             if means2d.grad is None:
-                raise RuntimeError("ADCStrategy: means2d has no gradient; render with return_stats=True "
-                                   "and call step_post_backward after loss.backward()")
+                raise RuntimeError(
+                    "ADCStrategy: means2d has no gradient; render with return_stats=True "
+                    "and call step_post_backward after loss.backward()"
+                )
             visible = r["visible"]
             ndc = means2d.grad * means2d.new_tensor([r["width"] / 2.0, r["height"] / 2.0]) * len(renders)
             state["grad2d"] += torch.where(visible, ndc.norm(dim=-1), 0.0)
             state["count"] += visible
-            state["max_radii"] = torch.maximum(state["max_radii"], torch.where(visible, r["radii"].float(), 0.0))
+            state["max_radii"] = torch.maximum(
+                state["max_radii"], torch.where(visible, r["radii"].float(), 0.0)
+            )
 
     # -- refinement -------------------------------------------------------------------------------
     @torch.no_grad()
@@ -97,8 +103,11 @@ class ADCStrategy(Strategy):
         small = max_scale <= self.percent_dense * extent
         candidates = grads >= self.grad_threshold
         clone, to_split = candidates & small, candidates & ~small
-        big_screen = (state["max_radii"] > self.prune_screen_size if self.prune_screen_size is not None
-                      else torch.zeros_like(clone))
+        big_screen = (
+            state["max_radii"] > self.prune_screen_size
+            if self.prune_screen_size is not None
+            else torch.zeros_like(clone)
+        )
 
         ops.duplicate(params, optimizers, clone)
         to_split = torch.cat([to_split, to_split.new_zeros(int(clone.sum()))])
@@ -112,7 +121,11 @@ class ADCStrategy(Strategy):
             prune |= big_screen
         ops.remove(params, optimizers, prune)
         self._reset_stats(state, params["means"].shape[0], params["means"].detach())
-        state["last_refine"] = {"clone": int(clone.sum()), "split": int(to_split.sum()), "prune": int(prune.sum())}
+        state["last_refine"] = {
+            "clone": int(clone.sum()),
+            "split": int(to_split.sum()),
+            "prune": int(prune.sum()),
+        }
 
     def step_post_backward(self, params, optimizers, state, step: int, info: dict) -> None:
         if step >= self.densify_until:
@@ -120,6 +133,8 @@ class ADCStrategy(Strategy):
         self._update_stats(params, state, info)
         if step > self.densify_from and step % self.densify_every == 0:
             self._densify_and_prune(params, optimizers, state, step)
-        white_start = self.reset_at_densify_from_if_white and state["white_background"] and step == self.densify_from
+        white_start = (
+            self.reset_at_densify_from_if_white and state["white_background"] and step == self.densify_from
+        )
         if step % self.reset_every == 0 or white_start:
             ops.reset_opacity(params, optimizers, self.reset_value)

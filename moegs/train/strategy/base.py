@@ -45,7 +45,9 @@ class Strategy:
         """Raise ``ValueError`` when a trainable per-Gaussian tensor has no optimiser."""
         for key in ("means", "scales", "quats", "opacities"):
             if key not in params:
-                raise ValueError(f"{type(self).__name__} needs splats[{key!r}]; the expert has {list(params)}")
+                raise ValueError(
+                    f"{type(self).__name__} needs splats[{key!r}]; the expert has {list(params)}"
+                )
         missing = [k for k, p in params.items() if p.requires_grad and k not in optimizers]
         if missing:
             raise ValueError(f"{type(self).__name__}: splats {missing} have no optimiser")

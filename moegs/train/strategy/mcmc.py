@@ -30,8 +30,9 @@ def binomial_table(n_max: int = MAX_COPIES + 1) -> Tensor:
     return torch.tensor([[math.comb(n, k) for k in range(n_max)] for n in range(n_max)], dtype=torch.float64)
 
 
-def relocation_update(opacities: Tensor, scales: Tensor, copies: Tensor,
-                      min_opacity: float = 0.005) -> tuple[Tensor, Tensor]:
+def relocation_update(
+    opacities: Tensor, scales: Tensor, copies: Tensor, min_opacity: float = 0.005
+) -> tuple[Tensor, Tensor]:
     """New opacity and scale of a Gaussian shared by ``copies`` Gaussians (MCMC paper eq. 9).
 
     ``o' = 1 - (1 - o)^(1/N)`` and ``s' = s · o / Σ_{i=1..N} Σ_{k=0..i-1} C(i-1, k) (-1)^k o'^(k+1) / √(k+1)``
@@ -110,8 +111,12 @@ class MCMCStrategy(Strategy):
     def _new_values(self, params, sources: Tensor, n: int) -> tuple[Tensor, Tensor]:
         """Raw (logit, log) opacity and scale of each drawn source; ``copies`` = times drawn + 1."""
         copies = torch.bincount(sources, minlength=n)[sources] + 1
-        o, s = relocation_update(torch.sigmoid(params["opacities"][sources]), torch.exp(params["scales"][sources]),
-                                 copies, self.min_opacity)
+        o, s = relocation_update(
+            torch.sigmoid(params["opacities"][sources]),
+            torch.exp(params["scales"][sources]),
+            copies,
+            self.min_opacity,
+        )
         return torch.logit(o), torch.log(s)
 
     @torch.no_grad()
@@ -167,6 +172,8 @@ class MCMCStrategy(Strategy):
         if self.group_key is None:
             return [torch.arange(params["means"].shape[0], device=params["means"].device)]
         if self.group_key not in params:
-            raise ValueError(f"MCMCStrategy.group_key {self.group_key!r} is not a splat entry ({list(params)})")
+            raise ValueError(
+                f"MCMCStrategy.group_key {self.group_key!r} is not a splat entry ({list(params)})"
+            )
         ids = params[self.group_key].detach()
         return [(ids == g).nonzero(as_tuple=True)[0] for g in torch.unique(ids)]

@@ -23,8 +23,13 @@ Rows = Callable[[str, Tensor], Tensor]
 
 
 @torch.no_grad()
-def update_params(params: nn.ParameterDict, optimizers: dict[str, torch.optim.Optimizer],
-                  param_fn: Rows, state_fn: Rows, keys: list[str] | None = None) -> None:
+def update_params(
+    params: nn.ParameterDict,
+    optimizers: dict[str, torch.optim.Optimizer],
+    param_fn: Rows,
+    state_fn: Rows,
+    keys: list[str] | None = None,
+) -> None:
     """Replace ``params[key]`` by ``param_fn(key, value)`` and each row-indexed optimiser state
     tensor ``v`` by ``state_fn(key, v)``, for every key (or the given ``keys``)."""
     for key in list(params.keys()) if keys is None else keys:
@@ -42,7 +47,8 @@ def update_params(params: nn.ParameterDict, optimizers: dict[str, torch.optim.Op
                 state = opt.state.pop(old, None)
                 if state:
                     opt.state[new] = {
-                        k: state_fn(key, v) if isinstance(v, Tensor) and v.ndim > 0 and v.shape[0] == old.shape[0]
+                        k: state_fn(key, v)
+                        if isinstance(v, Tensor) and v.ndim > 0 and v.shape[0] == old.shape[0]
                         else v
                         for k, v in state.items()
                     }
@@ -51,6 +57,7 @@ def update_params(params: nn.ParameterDict, optimizers: dict[str, torch.optim.Op
 def _append_zero_moments(new_rows: int) -> Rows:
     def fn(key: str, v: Tensor) -> Tensor:
         return torch.cat([v, v.new_zeros((new_rows, *v.shape[1:]))])
+
     return fn
 
 
@@ -62,8 +69,9 @@ def duplicate(params: nn.ParameterDict, optimizers: dict, mask: Tensor) -> None:
 
 
 @torch.no_grad()
-def split(params: nn.ParameterDict, optimizers: dict, mask: Tensor, samples: int = 2,
-          scale_divisor: float = 1.6) -> None:
+def split(
+    params: nn.ParameterDict, optimizers: dict, mask: Tensor, samples: int = 2, scale_divisor: float = 1.6
+) -> None:
     """3DGS split: each selected Gaussian is replaced by ``samples`` children.
 
     Children are centred at points drawn from the parent (``mean + R diag(s) eps``, ``eps ~ N(0, I)``)
@@ -107,13 +115,24 @@ def remove(params: nn.ParameterDict, optimizers: dict, mask: Tensor) -> None:
 def reset_opacity(params: nn.ParameterDict, optimizers: dict, value: float) -> None:
     """3DGS opacity reset: ``opacity = min(opacity, value)``; the opacity moments are zeroed."""
     cap = torch.logit(torch.tensor(value)).item()
-    update_params(params, optimizers, lambda k, v: v.clamp(max=cap), lambda k, v: torch.zeros_like(v),
-                  keys=["opacities"])
+    update_params(
+        params,
+        optimizers,
+        lambda k, v: v.clamp(max=cap),
+        lambda k, v: torch.zeros_like(v),
+        keys=["opacities"],
+    )
 
 
 @torch.no_grad()
-def relocate(params: nn.ParameterDict, optimizers: dict, dead: Tensor, sources: Tensor,
-             opacities: Tensor, scales: Tensor) -> None:
+def relocate(
+    params: nn.ParameterDict,
+    optimizers: dict,
+    dead: Tensor,
+    sources: Tensor,
+    opacities: Tensor,
+    scales: Tensor,
+) -> None:
     """3DGS-MCMC relocation: ``dead [D]`` slots copy ``sources [D]``; both get the new raw values.
 
     Args:
@@ -125,6 +144,7 @@ def relocate(params: nn.ParameterDict, optimizers: dict, dead: Tensor, sources: 
     The sources' moments are zeroed (as in 3DGS-MCMC ``replace_tensors_to_optimizer(inds=...)``); the
     dead slots keep theirs, as in the original.
     """
+
     def rows(key: str, v: Tensor) -> Tensor:
         v = v.clone()
         if key == "opacities":
@@ -143,13 +163,15 @@ def relocate(params: nn.ParameterDict, optimizers: dict, dead: Tensor, sources: 
 
 
 @torch.no_grad()
-def sample_add(params: nn.ParameterDict, optimizers: dict, sources: Tensor,
-               opacities: Tensor, scales: Tensor) -> None:
+def sample_add(
+    params: nn.ParameterDict, optimizers: dict, sources: Tensor, opacities: Tensor, scales: Tensor
+) -> None:
     """3DGS-MCMC growth: append copies of ``sources [A]``; sources and copies get the new raw values.
 
     ``opacities [A]`` / ``scales [A, 3]`` are the new raw values aligned with ``sources``. The copies
     get zero moments and the sources' moments are zeroed (3DGS-MCMC ``add_new_gs``).
     """
+
     def rows(key: str, v: Tensor) -> Tensor:
         v = v.clone()
         if key == "opacities":

@@ -1,0 +1,81 @@
+"""Trained experts shared across tests, cached on disk.
+
+``trained_expert("static", "dnerf:mutant", "quick")`` trains once and keeps the run under
+``<cache_root>/test-runs/<expert>_<scene>_<preset>_<code hash>/`` (``MOEGS_CACHE`` or ``.cache/``);
+later calls (in this or a later session) reload the checkpoint. The code hash covers every
+``moegs/**/*.py`` file, so any library change retrains. An interrupted run resumes from its last
+checkpoint. Scenes whose data is absent skip the calling test with the reason.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+
+import pytest
+
+from moegs.data.scene import Scene
+from moegs.experts.base import Expert
+from moegs.paths import cache_root
+
+_PACKAGE = Path(__file__).resolve().parents[2] / "moegs"
+
+
+@dataclass
+class TrainedRun:
+    """A finished training run. Treat ``expert`` as read-only: it is shared between tests."""
+
+    expert: Expert
+    scene: Scene
+    metrics: dict
+    path: Path
+
+
+@cache
+def code_hash() -> str:
+    """12 hex digits over the paths and contents of ``moegs/**/*.py``."""
+    digest = hashlib.sha256()
+    for path in sorted(_PACKAGE.rglob("*.py")):
+        digest.update(str(path.relative_to(_PACKAGE)).encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:12]
+
+
+def run_dir(name: str, scene: str, preset: str) -> Path:
+    return cache_root() / "test-runs" / f"{name}_{scene.replace(':', '_')}_{preset}_{code_hash()}"
+
+
+@cache
+def load_test_scene(scene: str, resolution_scale: float | None) -> Scene:
+    """A scene by name (cached per session); skips the test when its data is not staged."""
+    from moegs.data import load_scene
+
+    try:
+        return load_scene(
+            scene, **({} if resolution_scale is None else {"resolution_scale": resolution_scale})
+        )
+    except FileNotFoundError as err:
+        pytest.skip(f"scene {scene!r} unavailable: {err}")
+
+
+@cache
+def trained_expert(name: str, scene: str, preset: str = "quick") -> TrainedRun:
+    """The expert ``name`` trained on ``scene`` with ``preset``, from the cache or trained now."""
+    from moegs.experts import get_expert_class
+    from moegs.train.checkpoint import load_expert
+    from moegs.train.loop import train
+
+    cls = get_expert_class(name)
+    config = cls.config_class.from_preset(preset)
+    loaded = load_test_scene(scene, config.train.resolution_scale)
+    path = run_dir(name, scene, preset)
+    metrics_file = path / "metrics.json"
+    if metrics_file.is_file() and json.loads(metrics_file.read_text()).get("completed"):
+        expert, _ = load_expert(path, loaded)
+        return TrainedRun(expert, loaded, json.loads(metrics_file.read_text()), path)
+    expert = cls.from_scene(loaded, config)
+    metrics = train(expert, loaded, out_dir=path, progress=False)
+    return TrainedRun(expert.eval(), loaded, metrics, path)
