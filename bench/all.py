@@ -51,8 +51,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--jobs",
         type=int,
-        default=max(1, (os.cpu_count() or 1) // 2) or 1,
-        help="parallel tasks for the local executor",
+        default=os.cpu_count() or 1,
+        help="parallel tasks for the local executor (default: one per CPU core, 1 thread each)",
     )
     p.add_argument("--timeout", type=float, default=None, help="seconds per task (local executor)")
     p.add_argument(

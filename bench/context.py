@@ -8,6 +8,7 @@ checkpoint hashes so the result JSON can name exactly what it was computed from.
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -57,7 +58,10 @@ class Context:
             self.log(f"building {task.slug} ({task.key})")
         folder = self.workspace.ensure(task, lambda out: module.build(task, self, out))
         meta = self.workspace.artifact_meta(task)
+        config_file = folder / "config.json"  # written by moegs.train.loop.train: expert + training config
+        config = json.loads(config_file.read_text()) if config_file.is_file() else None
         self.used[task.key] = {
+            "config": config,
             "kind": task.kind,
             "params": dict(task.params),
             "seed": task.seed,

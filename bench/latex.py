@@ -133,8 +133,8 @@ def cell_tex(values: SpecValues, row: str, column: str, metric_name: str, ranks:
         rank = ranks.get(row)
         if rank is not None and rank < 3:
             ours = ("\\rankfirst{", "\\ranksecond{", "\\rankthird{")[rank] + ours + "}"
-    if printed is None or column == STAND_IN and values.paper_table is None:
-        return ours
+    if printed is None or (column == STAND_IN and cell.value is None):
+        return ours  # the stand-in column shows the paper's Average only beside a value of ours
     if cell.value is not None and cell.comparable:
         paper = values.paper.get(row, paper_col, metric_name)
         return f"{ours}\\paperdelta{{{tex(printed)}}}{{{_fmt_delta(cell.value - paper, metric_name)}}}"

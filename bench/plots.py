@@ -79,7 +79,7 @@ def paper_vs_ours(values: SpecValues, out_dir: Path) -> list[Path]:
         ax.set_xticks(x, [r.display for r in rows], rotation=35, ha="right", fontsize=7)
         ref = f"paper: {paper_col}" if col == STAND_IN else "paper"
         ax.set_title(f"{m} - {col}" + (" (synthetic stand-in)" if col == STAND_IN else ""), fontsize=9)
-        ax.legend(fontsize=7, title=ref, title_fontsize=7)
+        ax.legend(fontsize=6, title=ref, title_fontsize=6, loc="best", framealpha=0.6)
     fig.suptitle(f"{spec.id}: {spec.title} (hatched: not comparable, stand-in or subset)", fontsize=9)
     return [_save(fig, out_dir / f"{spec.id}_paper_vs_ours.png")]
 
@@ -104,7 +104,7 @@ def limitations(values: SpecValues, out_dir: Path) -> list[Path]:
         axes[2].plot(data["times"], data["psnr"][:, k], marker="o", ms=3, label=name, color=cmap(k))
     axes[2].set_xlabel("normalised time")
     axes[2].set_ylabel("PSNR (dB)")
-    axes[2].set_title("(c) per-frame PSNR: the winner changes over time", fontsize=9)
+    axes[2].set_title("(c) per-frame PSNR of each expert", fontsize=9)
     axes[2].legend(fontsize=7)
     for ax in axes[:2]:
         ax.axis("off")

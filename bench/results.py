@@ -13,7 +13,10 @@ One file per evaluated cell (``Workspace.result_path``). Fields::
     details       kind-specific extras (speed protocol, pruning stats, trajectories summary ...)
     files         {name: sha256} of arrays under <key>.files/
     scene         name, kwargs, real, stand_in text, summary, input hash
-    artifacts     {key: {kind, params, files: {name: sha256}, build_seconds}} of the checkpoints used
+    artifacts     {key: {kind, params, config, files: {name: sha256}, build_seconds, train_seconds}}
+                  of the artefacts used (config: the expert and training config the loop saved)
+    preset        the bench preset definition
+    hashes        task key, scene input hash, checkpoint file hashes
     timings       {"total_s", "load_s", "eval_s"}
     versions      python, torch, platform, moegs code version and git commit
     log           path of the task's log

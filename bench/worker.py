@@ -103,6 +103,12 @@ def _evaluate(task: Task, ctx: Context, log: Path) -> dict[str, Any]:
             "scene": {k: scene_meta.get(k) for k in ("scene", "summary", "stand_in", "real", "input_hash")}
             | {"kwargs": dict(task.scene_kwargs)},
             "artifacts": ctx.used,
+            "preset": ctx.preset.to_dict(),
+            "hashes": {
+                "task_key": task.key,
+                "scene_input": scene_meta.get("input_hash"),
+                "checkpoints": {k: v["files"] for k, v in ctx.used.items() if v["files"]},
+            },
             "timings": {
                 "total_s": time.perf_counter() - start,
                 "load_s": loaded - start,
