@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import sys
 from functools import cache
 from types import ModuleType
 
@@ -60,7 +61,7 @@ def module_missing(target: str) -> str | None:
     """
     module, _, attr = target.partition(":")
     try:
-        found = importlib.util.find_spec(module)
+        found = sys.modules.get(module) or importlib.util.find_spec(module)
     except (ModuleNotFoundError, ValueError):
         found = None
     if found is None:

@@ -40,13 +40,12 @@ def artifacts(task: Task) -> list[Task]:
 
 
 def _cameras(scene: Any, k: int) -> list[Any]:
-    """``k`` training cameras with distinct poses, spread over the rig."""
-    seen, cams = set(), []
+    """``k`` training cameras with distinct poses spread over the rig (multi-view: distinct camera ids;
+    monocular: views evenly spaced along the sequence, each its own pose)."""
+    by_id: dict[Any, Any] = {}
     for view in scene.train:
-        cid = view.camera.camera_id if view.camera.camera_id is not None else view.key
-        if cid not in seen:
-            seen.add(cid)
-            cams.append(view.camera)
+        by_id.setdefault(view.camera.camera_id, view.camera)
+    cams = list(by_id.values()) if len(by_id) >= k else [v.camera for v in scene.train]
     step = max(1, len(cams) // max(k, 1))
     return cams[::step][:k]
 
@@ -79,9 +78,7 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     with torch.no_grad():
         for t in times:
             frame = frame_at(t)
-            depths = [
-                rasterize(frame, cam.at_time(t) if hasattr(cam, "at_time") else cam).depth for cam in cams
-            ]
+            depths = [rasterize(frame, cam).depth for cam in cams]
             per_time.append(float(mdc(depths, cams)))
     return {
         "metrics": {"mdc": sum(per_time) / len(per_time)},
