@@ -206,6 +206,7 @@ _COMMANDS = {
     "eval": _cmd_eval,
     "render": _cmd_render,
     "export": _cmd_export,
+    "compare": _cmd_compare,
 }
 
 

@@ -22,16 +22,46 @@ class ExpertSpec:
 _REGISTRY: dict[str, ExpertSpec] = {
     spec.name: spec
     for spec in (
-        ExpertSpec("static", "moegs.experts.static:StaticExpert",
-                   "3DGS without deformation, trained on all frames (baseline)"),
-        ExpertSpec("mcmc", "moegs.experts.mcmc:MCMCExpert",
-                   "3DGS-MCMC trained per frame: one static model per time step"),
-        ExpertSpec("deformable", "moegs.experts.deformable:DeformableExpert",
-                   "Deformable 3D Gaussians (Yang et al. 2024): MLP on PE(x), PE(t) deforms canonical 3DGS"),
-        ExpertSpec("grid4d", "moegs.experts.grid4d:Grid4DExpert",
-                   "Grid4D (Xu et al. 2024): 4D decomposed hash grids + directional attention MLP"),
-        ExpertSpec("fourdgs", "moegs.experts.fourdgs:FourDGSExpert",
-                   "4D Gaussian Splatting (Wu et al. 2024): HexPlane + small MLP, coarse static stage"),
+        ExpertSpec(
+            "static",
+            "moegs.experts.static:StaticExpert",
+            "3DGS without deformation, trained on all frames (baseline)",
+        ),
+        ExpertSpec(
+            "mcmc",
+            "moegs.experts.mcmc:MCMCExpert",
+            "3DGS-MCMC trained per frame: one static model per time step",
+        ),
+        ExpertSpec(
+            "deformable",
+            "moegs.experts.deformable:DeformableExpert",
+            "Deformable 3D Gaussians (Yang et al. 2024): MLP on PE(x), PE(t) deforms canonical 3DGS",
+        ),
+        ExpertSpec(
+            "grid4d",
+            "moegs.experts.grid4d:Grid4DExpert",
+            "Grid4D (Xu et al. 2024): 4D decomposed hash grids + directional attention MLP",
+        ),
+        ExpertSpec(
+            "fourdgs",
+            "moegs.experts.fourdgs:FourDGSExpert",
+            "4D Gaussian Splatting (Wu et al. 2024): HexPlane + small MLP, coarse static stage",
+        ),
+        ExpertSpec(
+            "ed3dgs",
+            "moegs.experts.ed3dgs:ED3DGSExpert",
+            "E-D3DGS: per-Gaussian + temporal embeddings, coarse and fine MLP branches",
+        ),
+        ExpertSpec(
+            "stg",
+            "moegs.experts.stg:STGExpert",
+            "Spacetime Gaussians: polynomial motion, temporal RBF opacity, feature splatting",
+        ),
+        ExpertSpec(
+            "ex4dgs",
+            "moegs.experts.ex4dgs:Ex4DGSExpert",
+            "Ex4DGS: static drift + keyframed dynamic Gaussians, progressive training",
+        ),
     )
 }
 

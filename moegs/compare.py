@@ -1,0 +1,177 @@
+"""``moegs compare``: train and evaluate several experts on one scene at one preset, one table.
+
+    moegs compare --experts all --scene panoptic:basketball --preset quick
+    moegs compare --experts static,stg,ex4dgs --scene dnerf:mutant --out runs/compare-mutant
+
+Each expert is built from its preset (``from_scene``) and trained with the shared training loop into
+``<out>/<expert>/``; the loop's ``metrics.json`` there is the expert's result, so a finished expert is
+skipped on the next call and an interrupted one resumes from its checkpoint. The table (PSNR / SSIM /
+LPIPS on the scene's test views, training seconds, final number of Gaussians) is written as
+``<out>/table.md`` and ``<out>/table.json``.
+
+Scene loading: each expert's ``TrainConfig.resolution_scale``; ``--frames`` picks a frame window on
+datasets that have one (the ``quick`` preset defaults to the first ``QUICK_FRAMES`` frames there).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+QUICK_FRAMES = (0, 5)
+"""Frame window of the quick preset on multi-frame video datasets (CPU minutes for all experts)."""
+WINDOWED_DATASETS = ("panoptic", "n3v", "technicolor")
+"""Datasets whose loader takes ``frames=(start, stop)``."""
+COLUMNS = ("expert", "psnr", "ssim", "lpips", "train_seconds", "num_gaussians", "iterations")
+
+
+def _frames(scene: str, preset: str, frames: tuple[int, int] | None) -> tuple[int, int] | None:
+    dataset = scene.split(":", 1)[0].lower()
+    if frames is not None and dataset not in WINDOWED_DATASETS:
+        raise ValueError(f"--frames applies to {', '.join(WINDOWED_DATASETS)} scenes, not {scene!r}")
+    if frames is None and preset == "quick" and dataset in WINDOWED_DATASETS:
+        return QUICK_FRAMES
+    return frames
+
+
+def _finished(path: Path) -> dict | None:
+    """The loop's ``metrics.json`` of a completed run, or None."""
+    if not path.is_file():
+        return None
+    result = json.loads(path.read_text())
+    return result if result.get("completed") and result.get("test") else None
+
+
+def run_expert(
+    name: str,
+    scene_name: str,
+    preset: str,
+    out: Path,
+    frames: tuple[int, int] | None,
+    scenes: dict,
+    progress: bool,
+) -> dict:
+    """Train (or resume) one expert; returns the loop's result dict."""
+    from moegs.data import load_scene
+    from moegs.experts import get_expert_class
+    from moegs.train.loop import train
+
+    cls = get_expert_class(name)
+    config = cls.config_class.from_preset(preset)
+    key = config.train.resolution_scale
+    if key not in scenes:
+        kwargs: dict[str, Any] = {} if key is None else {"resolution_scale": key}
+        if frames is not None:
+            kwargs["frames"] = frames
+        scenes[key] = load_scene(scene_name, **kwargs)
+    scene = scenes[key]
+    return train(cls.from_scene(scene, config), scene, out_dir=out, progress=progress)
+
+
+def _row(name: str, result: dict, run_dir: Path) -> dict:
+    test = result["test"]
+    return {
+        "expert": name,
+        "psnr": test["psnr"],
+        "ssim": test["ssim"],
+        "lpips": test["lpips"],
+        "train_seconds": result["train_seconds"],
+        "num_gaussians": result["num_gaussians"],
+        "iterations": result["iterations"],
+        "stand_in": result.get("stand_in", ""),
+        "run": str(run_dir),
+    }
+
+
+def markdown(rows: list[dict], title: str) -> str:
+    """The table as GitHub markdown (LPIPS "n/a" when its weights are unavailable)."""
+
+    def fmt(key: str, value: Any) -> str:
+        if value is None:
+            return "n/a"
+        if key in ("psnr",):
+            return f"{value:.2f}"
+        if key in ("ssim", "lpips"):
+            return f"{value:.4f}"
+        if key == "train_seconds":
+            return f"{value:.1f}"
+        return str(value)
+
+    lines = [f"# {title}", "", "| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+    lines += ["| " + " | ".join(fmt(k, r[k]) for k in COLUMNS) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def compare(
+    experts: list[str],
+    scene: str,
+    preset: str = "quick",
+    out: str | Path | None = None,
+    frames: tuple[int, int] | None = None,
+    progress: bool = True,
+) -> dict:
+    """Train and evaluate ``experts`` on ``scene`` at ``preset``; write and return the table.
+
+    Returns:
+        ``{"scene", "preset", "frames", "rows": [{"expert", "psnr", "ssim", "lpips", "train_seconds",
+        "num_gaussians", "iterations", "stand_in", "run"}], "skipped": [experts whose result existed],
+        "table": path of table.md}``.
+    """
+    from moegs.experts import get_spec, list_experts
+    from moegs.io import write_json
+
+    names = [s.name for s in list_experts()] if experts == ["all"] else experts
+    for name in names:
+        get_spec(name)  # unknown names fail before any training
+    window = _frames(scene, preset, frames)
+    out = Path(out) if out is not None else Path("runs") / f"compare_{scene.replace(':', '_')}_{preset}"
+    rows, skipped, scenes = [], [], {}
+    for name in names:
+        run_dir = out / name
+        result = _finished(run_dir / "metrics.json")
+        if result is None:
+            result = run_expert(name, scene, preset, run_dir, window, scenes, progress)
+        else:
+            skipped.append(name)
+        rows.append(_row(name, result, run_dir))
+    table = {
+        "scene": scene,
+        "preset": preset,
+        "frames": list(window) if window else None,
+        "rows": rows,
+        "skipped": skipped,
+        "table": str(out / "table.md"),
+    }
+    title = f"{scene}, preset {preset}" + (f", frames {window[0]}-{window[1] - 1}" if window else "")
+    write_json(out / "table.json", table)
+    (out / "table.md").write_text(markdown(rows, title))
+    return table
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--experts", default="all", help="comma-separated registry names, or all")
+    parser.add_argument("--scene", required=True, help="<dataset>:<scene>, e.g. panoptic:basketball")
+    parser.add_argument("--preset", default="quick", help="config preset of every expert (quick or paper)")
+    parser.add_argument("--out", help="output folder (default runs/compare_<scene>_<preset>)")
+    parser.add_argument("--frames", help="frame window START:STOP on video datasets (quick default 0:5)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def main(args: argparse.Namespace) -> int:
+    frames = None
+    if args.frames:
+        start, _, stop = args.frames.partition(":")
+        frames = (int(start), int(stop))
+    experts = [e.strip() for e in args.experts.split(",") if e.strip()]
+    table = compare(experts, args.scene, args.preset, args.out, frames, progress=not args.quiet)
+    for row in table["rows"]:
+        lpips = "n/a" if row["lpips"] is None or math.isnan(row["lpips"]) else f"{row['lpips']:.4f}"
+        print(
+            f"{row['expert']:<10} PSNR {row['psnr']:6.2f}  SSIM {row['ssim']:.4f}  LPIPS {lpips}  "
+            f"{row['train_seconds']:7.1f} s  {row['num_gaussians']:>7} Gaussians"
+        )
+    print(f"table -> {table['table']} (and table.json beside it)")
+    return 0

@@ -1,0 +1,549 @@
+"""E-D3DGS (Bae et al., ECCV 2024): per-Gaussian and temporal embeddings decoded by two MLP branches.
+
+Every Gaussian ``i`` carries a learned embedding ``z_i`` (32-D, zero at init); time ``t`` is encoded by
+a table of temporal embeddings ``e(t)`` (256-D) read with linear interpolation over ``M`` knots. Two
+identical branches (coarse, fine) map ``[e(t), z_i]`` to offsets of the canonical attributes; they act
+one after the other and their offsets add up::
+
+    h = Linear([e(t), z_i])           (+ (ReLU, Linear) x (depth - 1))
+    x += dx(h) a,  q += dq(h) a,  log s += ds(h) a a_s,  logit o += do(h) a a_o,  SH += dSH(h) a_c
+
+with the ramp ``a = clip(step / 1000, 0, 1)`` and the delayed ramp ``a_{s,o,c} = clip((step -
+deform_from) / 1000, 0, 1)`` (N3V ``use_anneal``). The coarse branch reads a table resized to
+``min_embeddings`` knots; the fine branch's knot count grows linearly from min to max over
+``coarse_to_fine_until`` iterations (max at test). On multi-view data each camera has a learned time
+offset (its mean over trained cameras at test).
+
+Training extras: L1 + ``1e-4 sigmoid(mean opacity logit)`` (instead of opacity resets) + a local
+smoothness of the embeddings over k = 20 canonical neighbours; on multi-view data a camera sampler
+that keeps consecutive cameras far apart, error-guided frames after ``random_until`` and D-SSIM only on
+the iterations that reuse one frame across cameras.
+
+Sources: ``JeongminB/E-D3DGS`` @ a68543e (``scene/deformation.py``, ``scene/gaussian_model.py``,
+``train.py``, ``utils/extra_utils.py``, ``arguments/``); ``specs/experts_canonical.md`` section 2.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor, nn
+
+from moegs.camera import Camera
+from moegs.data.scene import Scene, View
+from moegs.experts.base import Expert, ExpertConfig, ParamGroup
+from moegs.experts.canonical import QUICK_ITERATIONS
+from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats, num_sh_bases
+from moegs.experts.static import QUICK_RESOLUTION, scene_points, thin_points
+from moegs.fields.mlp import Heads, mlp
+from moegs.gaussians import GaussianFrame
+from moegs.render import RenderOutput
+from moegs.train.config import TrainConfig
+from moegs.train.losses import dssim, l1
+from moegs.train.strategy import ADCStrategy, Strategy
+
+DEFORMABLE = ("means", "scales", "quats", "opacities", "sh")
+_HEAD_DIMS = {"means": 3, "scales": 3, "quats": 4, "opacities": 1}
+NEVER = 10**9  # an iteration no run reaches (E-D3DGS ``opacity_reset_interval = 6e6``)
+
+
+# -- formulas ----------------------------------------------------------------------------------------
+def sample_rows(table: Tensor, u: Tensor) -> Tensor:
+    """Linear interpolation between the rows of ``table [K, C]`` at normalised positions ``u [...]``.
+
+    ``u = 0`` is row 0 and ``u = 1`` row ``K - 1`` (``grid_sample(align_corners=True)``); positions
+    outside [0, 1] are reflected at the ends (``padding_mode="reflection"``). Returns ``[..., C]``.
+    """
+    if table.ndim != 2:
+        raise ValueError(f"sample_rows: table must be [K, C], got {list(table.shape)}")
+    k = table.shape[0]
+    if k == 1:
+        return table[0].expand(*u.shape, table.shape[1])
+    u = torch.remainder(u.abs(), 2.0)
+    u = torch.where(u > 1.0, 2.0 - u, u)
+    pos = u * (k - 1)
+    lo = pos.floor().long().clamp(max=k - 2)
+    w = (pos - lo.to(pos.dtype))[..., None]
+    return table[lo] * (1.0 - w) + table[lo + 1] * w
+
+
+def temporal_embedding(table: Tensor, t: float | Tensor, knots: int) -> Tensor:
+    """E-D3DGS ``get_temporal_embed``: ``table [K, C]`` resized to ``knots`` rows (linear, aligned
+    corners), then read at time ``t`` (linear between knots, reflected outside [0, 1]). Returns ``[C]``.
+
+    ``t`` may be a 0-dim tensor (a time shifted by a learned camera offset keeps its gradient)."""
+    if knots < 1:
+        raise ValueError(f"temporal_embedding needs knots >= 1, got {knots}")
+    grid = torch.linspace(0.0, 1.0, knots, dtype=table.dtype, device=table.device)
+    resized = sample_rows(table, grid)  # [knots, C]
+    return sample_rows(resized, torch.as_tensor(t, dtype=table.dtype, device=table.device))
+
+
+def knots_at(step: int, min_knots: int, max_knots: int, until: int | None) -> int:
+    """Fine-branch knot count at ``step``: ``int(min + (max - min) clip(step, 0, until) / until)``
+    (E-D3DGS ``int_lininterp``); ``until=None`` (no coarse-to-fine) gives ``max_knots``."""
+    if until is None:
+        return max_knots
+    return int(min_knots + (max_knots - min_knots) * min(max(step, 0), until) / until)
+
+
+def ramp(step: int, start: int, length: int) -> float:
+    """``clip((step - start) / length, 0, 1)``: the E-D3DGS anneal coefficient."""
+    return min(max((step - start) / length, 0.0), 1.0)
+
+
+def knn(points: Tensor, k: int) -> tuple[Tensor, Tensor]:
+    """The ``k`` nearest other points of each point (KD-tree, as open3d ``KDTreeFlann`` in E-D3DGS).
+
+    Args:
+        points: ``[N, 3]``.
+
+    Returns:
+        squared distances ``[N, k']`` and indices ``[N, k']`` (int64), ``k' = min(k, N - 1)``.
+    """
+    from scipy.spatial import cKDTree
+
+    n = points.shape[0]
+    k = min(k, n - 1)
+    if k < 1:
+        raise ValueError(f"knn needs at least 2 points, got {n}")
+    p = points.detach().cpu().double().numpy()
+    dist, idx = cKDTree(p).query(p, k=k + 1)
+    dist = torch.from_numpy(dist[:, 1:] ** 2).to(points.dtype)
+    return dist.to(points.device), torch.from_numpy(idx[:, 1:]).long().to(points.device)
+
+
+def embedding_smoothness(embedding: Tensor, neighbours: Tensor, weights: Tensor) -> Tensor:
+    """Mean over Gaussians and neighbours of ``sqrt(w_ij ||z_i - z_j||² + 1e-20)`` (E-D3DGS
+    ``weighted_l2_loss_v2``).
+
+    Args:
+        embedding: ``[N, D]``; neighbours: ``[N, k]`` indices; weights: ``[N, k]``.
+    """
+    diff = embedding[:, None, :] - embedding[neighbours]  # [N, k, D]
+    return torch.sqrt(diff.square().sum(-1) * weights + 1e-20).mean()
+
+
+def buggy_temporal_tv(table: Tensor) -> Tensor:
+    """The HyperNeRF temporal-embedding "TV" term exactly as E-D3DGS computes it: differences against
+    the *last* rows ``w[K-1]`` / ``d[K-2]`` instead of shifted rows (``train.py``). ``table [K, C]``."""
+    k = table.shape[0]
+    first = table[1:] - table[k - 1]
+    second = first[1:] - first[k - 2]
+    return second.square().mean()
+
+
+# -- fields --------------------------------------------------------------------------------------------
+class DeformBranch(nn.Module):
+    """One E-D3DGS branch: ``[e(t) (Ct), z_i (Cz)] -> hidden (W)`` then one head per deformed attribute.
+
+    Heads are ``ReLU, Linear(W, W), ReLU, Linear(W, out)`` (4DGaussians style); PyTorch default init
+    (E-D3DGS never applies its ``initialize_weights``).
+    """
+
+    def __init__(
+        self,
+        temporal_dim: int,
+        embedding_dim: int,
+        width: int,
+        depth: int,
+        deform: tuple[str, ...],
+        sh_bases: int,
+    ) -> None:
+        super().__init__()
+        self.feature_out = mlp([temporal_dim + embedding_dim] + [width] * max(depth, 1))
+        outputs = {name: _HEAD_DIMS.get(name, 3 * sh_bases) for name in deform}
+        self.heads = Heads(width, outputs, hidden=(width,), relu_first=True)
+
+    def forward(self, e: Tensor, z: Tensor) -> dict[str, Tensor]:
+        """``e [Ct]`` (one time), ``z [N, Cz]`` -> ``{attribute: offset [N, out]}``."""
+        h = self.feature_out(torch.cat([e.expand(z.shape[0], -1), z], dim=-1))
+        return self.heads(h)
+
+
+class ED3DGSFields(nn.Module):
+    """Temporal table ``[max_embeddings, temporal_dim]``, the two branches and per-camera time offsets."""
+
+    def __init__(self, config: ED3DGSConfig, num_cameras: int) -> None:
+        super().__init__()
+        c = config
+        shape = (c.max_embeddings, c.temporal_dim)
+        init = (
+            torch.zeros(shape) if c.zero_temporal else torch.randn(shape) * (0.01 / math.sqrt(c.temporal_dim))
+        )
+        self.temporal = nn.Parameter(init)
+        bases = num_sh_bases(c.sh_degree)
+        self.coarse = DeformBranch(c.temporal_dim, c.embedding_dim, c.width, c.depth, c.deform, bases)
+        self.fine = DeformBranch(c.temporal_dim, c.embedding_dim, c.width, c.depth, c.deform, bases)
+        self.offsets = nn.Parameter(torch.zeros(num_cameras)) if num_cameras > 0 else None
+
+    def time_offset(self, camera: Camera | None, training: bool) -> Tensor | float:
+        """The camera's learned offset while training; at test the mean of the non-zero offsets."""
+        if self.offsets is None:
+            return 0.0
+        if training and camera is not None:
+            if not 0 <= camera.camera_id < self.offsets.shape[0]:
+                raise ValueError(
+                    f"camera_id {camera.camera_id} has no time offset (table of {self.offsets.shape[0]})"
+                )
+            return self.offsets[camera.camera_id]
+        nonzero = self.offsets[self.offsets != 0]
+        return nonzero.mean() if nonzero.numel() else 0.0
+
+
+# -- config ----------------------------------------------------------------------------------------------
+@dataclass
+class ED3DGSConfig(ExpertConfig):
+    """E-D3DGS hyperparameters. Defaults: the N3V protocol used by MoE-GS (``arguments/dynerf/default.py``
+    over ``arguments/__init__.py``)."""
+
+    sh_degree: int = 3
+    """Maximum SH degree (+1 every 1000 iterations)."""
+    max_init_points: int | None = None
+    """Keep at most this many initial points (random subset); None keeps all (E-D3DGS: ≤100k MVS points)."""
+    embedding_dim: int = 32
+    """Per-Gaussian embedding size (``gaussian_embedding_dim``)."""
+    temporal_dim: int = 256
+    """Temporal embedding size (``temporal_embedding_dim``)."""
+    min_embeddings: int = 30
+    """Knots of the coarse table and start of the fine schedule (N3V 30; Technicolor 5; HyperNeRF 16-50)."""
+    max_embeddings: int = 150
+    """Rows of the temporal table, knots of the fine branch at test (N3V 150; Technicolor 25)."""
+    coarse_to_fine_until: int | None = 10_000
+    """Iteration at which the fine branch reaches ``max_embeddings`` (``c2f_temporal_iter``); None = always
+    max (``no_c2f_temporal_embedding``, Technicolor)."""
+    coarse_min_embeddings: bool = True
+    """The coarse branch reads ``min_embeddings`` knots (``use_coarse_temporal_embedding``, N3V); else it
+    follows the fine schedule."""
+    zero_temporal: bool = False
+    """Zero-initialised temporal table (Technicolor, HyperNeRF); else N(0, 0.01/sqrt(256)) (N3V)."""
+    width: int = 128
+    """Branch width ``W`` (``net_width``; code default 64, every dataset config 128)."""
+    depth: int = 1
+    """Linear layers before the heads (``defor_depth``; N3V 1, others 0, which builds the same net)."""
+    deform: tuple[str, ...] = DEFORMABLE
+    """Deformed attributes (N3V all five; Technicolor without "sh"; HyperNeRF means, scales, quats)."""
+    use_anneal: bool = True
+    """Ramp the deformation in (``use_anneal``, N3V); off elsewhere (all coefficients 1)."""
+    anneal_steps: int = 1000
+    """Length of both ramps (hard-coded 1000 in ``deformation.py``)."""
+    deform_from: int = 5000
+    """Start of the scale / opacity / colour ramp (``deform_from_iter``, N3V 5000)."""
+    time_offsets: bool = True
+    """Learn one time offset per camera on multi-view scenes (``offsets``)."""
+    offsets_lr: float = 2e-5
+    """Time-offset learning rate (N3V 2e-5; 0 on the other datasets, i.e. ``time_offsets=False``)."""
+    spatial_lr_scale: float | None = None
+    """Multiplier of the position / deformation learning rates; None = scene extent (``cameras_extent``)."""
+    means_lr: float = 1.6e-4
+    means_lr_final: float = 1.6e-6
+    means_lr_max_steps: int = 80_000
+    """``position_lr_*`` (max steps = iterations in every dataset config)."""
+    deformation_lr: float = 1.6e-4
+    deformation_lr_final: float = 1.6e-5
+    deformation_lr_max_steps: int = 80_000
+    """``deformation_lr_*``: MLPs and the temporal table (Technicolor 1.6e-3 -> 1.6e-4)."""
+    embedding_lr: float = 2.5e-3
+    """Per-Gaussian embedding learning rate (``feature_lr``)."""
+    sh0_lr: float = 2.5e-3
+    shN_lr: float = 2.5e-3 / 20
+    opacities_lr: float = 0.05
+    scales_lr: float = 5e-3
+    quats_lr: float = 1e-3
+    opacity_reg: float = 1e-4
+    """Weight of ``sigmoid(mean opacity logit)`` (``opacity_l1_coef_fine``)."""
+    smoothness_reg: float = 1.0
+    """Weight of the kNN embedding smoothness (``reg_coef``; Technicolor 0.1)."""
+    smoothness_neighbours: int = 20
+    smoothness_falloff: float = 2000.0
+    """Neighbour weight ``exp(-falloff d²)`` (Dynamic3DGaussians' constant)."""
+    temporal_tv: float = 0.0
+    """Weight of the (buggy, see ``buggy_temporal_tv``) temporal TV (HyperNeRF 1e-4)."""
+    lambda_ssim: float = 1.0
+    """Weight of ``(1 - SSIM) / 2`` on the multi-view SSIM iterations (``lambda_dssim``; HyperNeRF 0)."""
+    random_until: int = 10_000
+    """Uniform frames until here; afterwards odd iterations sample frames by error (multi-view only)."""
+    multiview_ssim_iters: int = 5
+    """After ``random_until``, the first this many iterations of every 50 reuse one frame and add D-SSIM."""
+    strategy: Strategy = field(
+        default_factory=lambda: ADCStrategy(
+            densify_from=5000,
+            densify_until=80_000,
+            densify_every=100,
+            grad_threshold=3e-4,
+            prune_opacity=0.005,
+            reset_every=NEVER,
+            reset_at_densify_from_if_white=False,
+        )
+    )
+    """Densify/prune every 100 from 5000 (N3V), no opacity reset, no size pruning."""
+    train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations=80_000, lambda_dssim=0.0))
+    """80k iterations; the loop's D-SSIM is off: E-D3DGS adds it itself on multi-view SSIM iterations."""
+
+    def __post_init__(self) -> None:
+        unknown = set(self.deform) - set(DEFORMABLE)
+        if unknown or "means" not in self.deform:
+            raise ValueError(
+                f"ED3DGSConfig.deform must include 'means' and be a subset of {DEFORMABLE}, got {self.deform}"
+            )
+        if not 1 <= self.min_embeddings <= self.max_embeddings:
+            raise ValueError(
+                f"need 1 <= min_embeddings <= max_embeddings, got {self.min_embeddings}, "
+                f"{self.max_embeddings}"
+            )
+
+    @classmethod
+    def presets(cls) -> dict[str, Callable[[], ED3DGSConfig]]:
+        return {"paper": cls, "quick": cls.quick}
+
+    @classmethod
+    def quick(cls) -> ED3DGSConfig:
+        """CPU minutes: the N3V recipe with every schedule shrunk from 80k to the static baseline's 600."""
+        iterations = QUICK_ITERATIONS  # quick: 80k -> 600; all iteration counts below scale with it
+        return cls(
+            max_init_points=5000,  # quick: CPU rasterizer cost (E-D3DGS: up to 100k MVS points)
+            width=64,  # quick: the code default (arguments/__init__.py); every dataset config uses 128
+            coarse_to_fine_until=iterations // 8,  # quick: 10k of 80k
+            anneal_steps=50,  # quick: 1000 of 80k would leave the deformation ramping over the whole run
+            deform_from=iterations // 16,  # quick: 5000 of 80k
+            means_lr_max_steps=iterations,
+            deformation_lr_max_steps=iterations,
+            random_until=iterations // 8,  # quick: 10k of 80k
+            strategy=ADCStrategy(
+                densify_from=iterations // 16,
+                densify_until=int(iterations * 0.75),
+                densify_every=50,
+                grad_threshold=3e-4,
+                prune_opacity=0.005,
+                reset_every=NEVER,
+                reset_at_densify_from_if_white=False,
+            ),
+            # quick: densify every 50 (not 100) and stop at 75% so that a short run densifies ~8 times
+            train=TrainConfig(iterations=iterations, lambda_dssim=0.0, resolution_scale=QUICK_RESOLUTION),
+        )
+
+
+# -- multi-view view sampler -----------------------------------------------------------------------------
+class _ViewTable(nn.Module):
+    """E-D3DGS's multi-view sampling state: far-apart consecutive cameras and error-guided frames.
+
+    Buffers (saved with the expert so that a resumed run samples the same way): ``errors [C, F]``
+    (last L1 of each camera x frame, 100 until seen), ``last_camera``, ``kept_frame`` (-1 = none).
+    """
+
+    def __init__(self, views: list[View]) -> None:
+        super().__init__()
+        cams = sorted({v.camera.camera_id for v in views})
+        frames = sorted({v.camera.frame for v in views})
+        self.cam_pos = {c: i for i, c in enumerate(cams)}
+        self.frame_pos = {f: i for i, f in enumerate(frames)}
+        self.index = {
+            (self.cam_pos[v.camera.camera_id], self.frame_pos[v.camera.frame]): k for k, v in enumerate(views)
+        }
+        centres = {}
+        for v in views:
+            centres.setdefault(v.camera.camera_id, v.camera.center)
+        c = torch.stack([centres[k] for k in cams])
+        self.distances = torch.cdist(c, c)  # [C, C]
+        unique = torch.unique(self.distances)
+        self.min_distance = float(unique[int(unique.numel() * 0.5)])  # median unique pair distance
+        self.register_buffer("errors", torch.full((len(cams), len(frames)), 100.0))
+        self.register_buffer("last_camera", torch.zeros((), dtype=torch.long))
+        self.register_buffer("kept_frame", torch.full((), -1, dtype=torch.long))
+
+    def _camera(self, generator: torch.Generator) -> int:
+        """A camera at least the median pair distance from the previous one (E-D3DGS ``sample_camera``)."""
+        last = int(self.last_camera)
+        far = (self.distances[last] >= self.min_distance).nonzero(as_tuple=True)[0]
+        far = far[far != last]
+        pool = far if far.numel() else torch.arange(self.distances.shape[0])
+        cam = int(pool[torch.randint(pool.numel(), (1,), generator=generator)])
+        self.last_camera.fill_(cam)
+        return cam
+
+    def _frame(self, by_error: bool, generator: torch.Generator) -> int:
+        """Uniform, or ∝ the min-max normalised per-frame error summed over cameras (``get_idx_by_error``)."""
+        if int(self.kept_frame) >= 0:
+            return int(self.kept_frame)
+        num = self.errors.shape[1]
+        if not by_error:
+            return int(torch.randint(num, (1,), generator=generator))
+        e = self.errors.sum(0)
+        e = (e - e.min()) / (e.max() - e.min()).clamp_min(1e-12)
+        if e.sum() <= 0:
+            return int(torch.randint(num, (1,), generator=generator))
+        return int(torch.multinomial(e / e.sum(), 1, generator=generator))
+
+    def sample(self, step: int, batch: int, config: ED3DGSConfig, generator: torch.Generator) -> list[int]:
+        by_error = step >= config.random_until and step % 2 == 0
+        picks = []
+        for _ in range(batch):
+            cam, frame = self._camera(generator), self._frame(by_error, generator)
+            if (cam, frame) not in self.index:  # camera missing at that frame: any camera of the frame
+                cam = next(c for (c, f) in self.index if f == frame)
+            picks.append(self.index[(cam, frame)])
+        keep = ssim_step(step, config)
+        self.kept_frame.fill_(frame if keep else -1)
+        return picks
+
+    def record(self, camera: Camera, error: float) -> None:
+        self.errors[self.cam_pos[camera.camera_id], self.frame_pos[camera.frame]] = error
+
+
+def ssim_step(step: int, config: ED3DGSConfig) -> bool:
+    """Whether iteration ``step`` reuses its frame on the next iteration and adds D-SSIM (multi-view)."""
+    return (
+        step >= config.random_until
+        and config.multiview_ssim_iters > 0
+        and step % 50 < config.multiview_ssim_iters
+    )
+
+
+# -- expert ------------------------------------------------------------------------------------------------
+class ED3DGSExpert(Expert):
+    """E-D3DGS: canonical 3DGS + per-Gaussian ``embedding [N, 32]`` + ``ED3DGSFields``."""
+
+    name = "ed3dgs"
+    config_class = ED3DGSConfig
+
+    def __init__(
+        self,
+        config: ED3DGSConfig,
+        splats: nn.ParameterDict,
+        fields: ED3DGSFields,
+        spatial_lr_scale: float,
+        views: _ViewTable | None,
+    ) -> None:
+        super().__init__(config, splats, fields)
+        self.spatial_lr_scale = spatial_lr_scale
+        self.views = views
+        self.register_buffer("step", torch.zeros((), dtype=torch.long))
+        self._knn: tuple[int, Tensor, Tensor] | None = (
+            None  # (N, neighbours, weights), rebuilt when N changes
+        )
+
+    @classmethod
+    def from_scene(cls, scene: Scene, config: ED3DGSConfig) -> ED3DGSExpert:
+        points = thin_points(scene_points(scene), config.max_init_points, config.train.seed)
+        splats = init_splats(
+            points, config.sh_degree, extra={"embedding": torch.zeros(len(points), config.embedding_dim)}
+        )
+        splats["scales"].data.clamp_(max=1.0)  # E-D3DGS create_from_pcd clamps the log-scale at 1
+        multiview = scene.multiview and config.time_offsets
+        num_cameras = 1 + max(v.camera.camera_id for v in scene.train + scene.test) if multiview else 0
+        scale = config.spatial_lr_scale if config.spatial_lr_scale is not None else scene.extent
+        table = _ViewTable(scene.train) if scene.multiview else None
+        return cls(config, splats, ED3DGSFields(config, num_cameras), scale, table)
+
+    # -- training hooks ---------------------------------------------------------------------------------
+    def on_step(self, step: int) -> bool:
+        self.step.fill_(step)
+        return False
+
+    def select_views(
+        self, step: int, views: list[View], batch_size: int, generator: torch.Generator
+    ) -> list[int] | None:
+        """Multi-view: far-apart cameras, error-guided frames (None on monocular scenes: default sampler)."""
+        if self.views is None:
+            return None
+        return self.views.sample(step, batch_size, self.config, generator)
+
+    def observe(self, step: int, view: View, rgb: Tensor, target: Tensor, out: RenderOutput) -> Tensor | None:
+        """Record the view's L1 for error-guided sampling; D-SSIM ``λ (1 - SSIM) / 2`` on SSIM iterations."""
+        if self.views is None:
+            return None
+        self.views.record(view.camera, float(l1(rgb.detach(), target)))
+        c = self.config
+        extra_every_10 = (
+            c.multiview_ssim_iters == 0 and step >= c.random_until and step % 2 == 0 and step % 10 == 0
+        )
+        if c.lambda_ssim > 0 and (ssim_step(step, c) or extra_every_10):
+            return c.lambda_ssim * dssim(rgb, target) / 2
+        return None
+
+    # -- deformation -----------------------------------------------------------------------------------
+    def knots(self) -> tuple[int, int]:
+        """(coarse, fine) knot counts now: the schedule while training, max at test."""
+        c, step = self.config, int(self.step)
+        fine = (
+            knots_at(step, c.min_embeddings, c.max_embeddings, c.coarse_to_fine_until)
+            if self.training
+            else c.max_embeddings
+        )
+        return (c.min_embeddings if c.coarse_min_embeddings else fine), fine
+
+    def coefficients(self) -> dict[str, float]:
+        """Anneal factor of each deformed attribute at the current step (1 without ``use_anneal``)."""
+        c, step = self.config, int(self.step)
+        if not c.use_anneal:
+            return dict.fromkeys(DEFORMABLE, 1.0)
+        a = ramp(step, 0, c.anneal_steps)
+        late = ramp(step, c.deform_from, c.anneal_steps)
+        return {"means": a, "quats": a, "scales": a * late, "opacities": a * late, "sh": late}
+
+    def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
+        s, f = self.splats, self.fields
+        time = t + f.time_offset(camera, self.training)
+        coef = self.coefficients()
+        raw = {
+            "means": s["means"],
+            "scales": s["scales"],
+            "quats": s["quats"],
+            "opacities": s["opacities"],
+            "sh": torch.cat([s["sh0"], s["shN"]], dim=1),
+        }
+        for branch, knots in zip((f.coarse, f.fine), self.knots(), strict=True):
+            e = temporal_embedding(f.temporal, time, knots)
+            for name, d in branch(e, s["embedding"]).items():
+                raw[name] = raw[name] + d.reshape(raw[name].shape) * coef[name]
+        sh = raw.pop("sh")
+        raw.update(sh0=sh[:, :1], shN=sh[:, 1:])
+        return activate(raw, active_sh_degree(int(self.step), self.config.sh_degree))
+
+    def regularization(self, step: int, frame: GaussianFrame | None = None) -> Tensor:
+        c, s = self.config, self.splats
+        loss = c.opacity_reg * torch.sigmoid(s["opacities"].mean())
+        if c.smoothness_reg > 0:
+            n = s["means"].shape[0]
+            if self._knn is None or self._knn[0] != n:
+                d2, idx = knn(s["means"].detach(), c.smoothness_neighbours)
+                self._knn = (n, idx, torch.exp(-c.smoothness_falloff * d2))
+            loss = loss + c.smoothness_reg * embedding_smoothness(s["embedding"], self._knn[1], self._knn[2])
+        if c.temporal_tv > 0:
+            loss = loss + c.temporal_tv * buggy_temporal_tv(self.fields.temporal)
+        return loss
+
+    def param_groups(self) -> list[ParamGroup]:
+        c, sc, s, f = self.config, self.spatial_lr_scale, self.splats, self.fields
+        deformation = [f.temporal, *f.coarse.parameters(), *f.fine.parameters()]
+        groups = [
+            ParamGroup(
+                "means",
+                [s["means"]],
+                c.means_lr * sc,
+                lr_final=c.means_lr_final * sc,
+                max_steps=c.means_lr_max_steps,
+            ),
+            ParamGroup(
+                "deformation",
+                deformation,
+                c.deformation_lr * sc,
+                lr_final=c.deformation_lr_final * sc,
+                max_steps=c.deformation_lr_max_steps,
+            ),
+            ParamGroup("embedding", [s["embedding"]], c.embedding_lr),
+            ParamGroup("sh0", [s["sh0"]], c.sh0_lr),
+            ParamGroup("shN", [s["shN"]], c.shN_lr),
+            ParamGroup("opacities", [s["opacities"]], c.opacities_lr),
+            ParamGroup("scales", [s["scales"]], c.scales_lr),
+            ParamGroup("quats", [s["quats"]], c.quats_lr),
+        ]
+        if f.offsets is not None:
+            groups.append(ParamGroup("offsets", [f.offsets], c.offsets_lr))
+        return groups
+
+    def strategy(self) -> Strategy:
+        return self.config.strategy

@@ -1,0 +1,671 @@
+"""Ex4DGS, fully explicit dynamic Gaussian splatting (Lee et al., NeurIPS 2024).
+
+Two disjoint sets of Gaussians, kept here in one set of per-Gaussian tensors with a ``dynamic`` flag:
+
+* static: ``x(t) = x + d t / D_cur`` (a linear drift ``d`` over the current progressive duration);
+* dynamic: ``K`` keyframes every ``I`` frames. With ``u = t + τs``, ``k = ⌊u / I⌋``, ``δ = (u mod I) / I``
+  the position is the cubic Hermite curve through ``P_k, P_{k+1}`` with Catmull-Rom tangents
+  ``m_k = (P_{k+1} - P_{k-1}) / 2``, the rotation ``slerp(Q_k, Q_{k+1}, δ)`` and the opacity
+  ``sigmoid(o)`` times a two-sided temporal Gaussian around the centres ``c0, c1``.
+
+Time is the integer frame index (``(t - t_first) / frame_step`` of the normalised scene time). Training
+starts static on the first ``start_duration`` frames and grows by ``I`` frames every
+``grow_every`` iterations; after each growth (and every ``extract_every`` iterations) the static
+Gaussians that drift most relative to their distance to the camera become dynamic. A per-Gaussian
+error is accumulated by back-tracking the per-pixel L1 / SSIM maps through the splatting weights
+(Ex4DGS's "flow" trick: a zero per-Gaussian probe splatted as extra channels whose image gradient is
+replaced by the error maps) and drives the keyframe initialisation time and error pruning. The
+rasteriser is the 0.1-dilation antialiased mode; RAdam; random background while training.
+
+Sources: ``juno181/Ex4DGS`` @ 7fac649 (``scene/c_gaussian_model.py``, ``utils/interpolations.py``,
+``train.py``, ``arguments/__init__.py``, ``configs/N3V/n3v_base.json``); ``specs/experts_noncanonical.md``
+section 2.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor, nn
+
+from moegs.camera import Camera
+from moegs.data.scene import Scene, View
+from moegs.experts.base import Expert, ExpertConfig, ParamGroup
+from moegs.experts.canonical import QUICK_ITERATIONS
+from moegs.experts.gaussian_params import active_sh_degree, init_splats, sh_coeffs
+from moegs.experts.static import QUICK_RESOLUTION, scene_points, thin_points
+from moegs.gaussians import GaussianFrame
+from moegs.metrics.ssim import ssim_map
+from moegs.render import RenderOutput, rasterize
+from moegs.render.projection import eval_sh, quat_to_rotmat, view_dirs
+from moegs.train.config import TrainConfig
+from moegs.train.strategy import ADCStrategy, Strategy, ops
+
+NEVER = 10**9  # an iteration no run reaches
+STATS = ("err_sum", "ssim_sum", "err_count", "err_min", "err_min_time", "weight_max", "radius_min")
+"""Back-tracking statistics kept as non-trainable per-Gaussian entries of ``splats`` (so densification
+keeps them aligned): sums of per-view L1 / SSIM, views counted, lowest L1 and its frame, largest splat
+weight seen and smallest screen radius seen."""
+
+
+# -- formulas ----------------------------------------------------------------------------------------
+def keyframe_position(t: float, shift: float, interval: int) -> tuple[int, float]:
+    """``(k, δ)`` for frame ``t``: ``u = t + shift``, ``k = ⌊u / I⌋``, ``δ = (u mod I) / I``."""
+    u = t + shift
+    return int(u // interval), (u % interval) / interval
+
+
+def catmull_rom(points: Tensor, k: int, delta: float) -> Tensor:
+    """Cubic Hermite through ``P_k, P_{k+1}`` with tangents ``(P_{k+1} - P_{k-1}) / 2`` and
+    ``(P_{k+2} - P_k) / 2`` (Ex4DGS ``cube_interpolate``). ``points [M, K, 3]`` -> ``[M, 3]``."""
+    if not 1 <= k <= points.shape[1] - 3:
+        raise ValueError(
+            f"keyframe {k} needs neighbours k-1..k+2 inside 0..{points.shape[1] - 1}; "
+            "the time lies outside the keyframe range"
+        )
+    p0, p1, p2, p3 = (points[:, k + i] for i in (-1, 0, 1, 2))
+    d2, d3 = delta**2, delta**3
+    h00, h10, h01, h11 = 2 * d3 - 3 * d2 + 1, d3 - 2 * d2 + delta, -2 * d3 + 3 * d2, d3 - d2
+    return h00 * p1 + h10 * (p2 - p0) / 2 + h01 * p2 + h11 * (p3 - p1) / 2
+
+
+def slerp(q0: Tensor, q1: Tensor, delta: float) -> Tensor:
+    """Ex4DGS ``quat_slerp_interp_uniiterval``: normalised inputs, cosine clamped to ±(1 - 1e-4), weights
+    ``sin((1-δ)Ω) / sinΩ`` and ``sin(δΩ) / sinΩ`` renormalised to sum 1, **no** shortest-arc flip.
+    ``q0, q1 [M, 4]`` -> ``[M, 4]`` unit quaternions."""
+    q0 = q0 / q0.norm(dim=-1, keepdim=True)
+    q1 = q1 / q1.norm(dim=-1, keepdim=True)
+    cos = (q0 * q1).sum(-1, keepdim=True).clamp(-1 + 1e-4, 1 - 1e-4)
+    omega = torch.acos(cos).clamp_min(1e-4)
+    sin = torch.sin(omega).clamp_min(1e-4)
+    w0, w1 = torch.sin((1 - delta) * omega) / sin, torch.sin(delta * omega) / sin
+    total = (w0 + w1).clamp_min(1e-4)
+    q = q0 * (w0 / total) + q1 * (w1 / total)
+    q = torch.where(q.abs().sum(-1, keepdim=True) > 1e-4, q, q0)
+    return q / q.norm(dim=-1, keepdim=True)
+
+
+def temporal_opacity(centers: Tensor, log_widths: Tensor, t: float, var_min: float) -> Tensor:
+    """Ex4DGS ``time_bigaussian`` at keyframe-unit time ``t`` (``(frame + τs) / I``), taken literally.
+
+    Between the centres ``c0, c1`` the factor is 1; elsewhere ``exp(-m² / (e^v + var_min / 2.36)²)`` with
+    ``m = min_k (t - c_k)`` and ``v`` the right width if ``t`` exceeds either centre, else the left one.
+    ``centers, log_widths [M, 2]`` -> ``[M]``.
+    """
+    m = (t - centers).min(dim=1).values
+    v = torch.where((t > centers).any(dim=1), log_widths[:, 1], log_widths[:, 0])
+    factor = torch.exp(-(m**2) / (torch.exp(v) + var_min / 2.36) ** 2)
+    inside = (centers[:, 0] - t) * (centers[:, 1] - t) < 0
+    return torch.where(inside, torch.ones_like(factor), factor)
+
+
+def keyframe_count(duration: float, shift: float, interval: int) -> int:
+    """Keyframes covering ``duration`` frames (Ex4DGS first extraction: ``⌈(D + 2 τs + 1) / I⌉ + 3``)."""
+    return math.ceil((duration + 2 * shift + 1) / interval) + 3
+
+
+def initial_keyframes(x: Tensor, d: Tensor, interval: int, duration: float, count: int) -> Tensor:
+    """Keyframes of converted static Gaussians: the two points ``x - d I / D`` and ``x + d (1 + I / D)``
+    linearly resized to ``count`` samples (``F.interpolate``, ``align_corners=False``, as the original).
+    ``x, d [M, 3]`` -> ``[M, count, 3]``."""
+    ends = torch.stack([x - d * interval / duration, x + d * (1 + interval / duration)], dim=2)  # [M, 3, 2]
+    return nn.functional.interpolate(ends, size=count, mode="linear").transpose(1, 2)
+
+
+def extrapolate_keyframes(keys: Tensor, valid: int, average: int = 4) -> Tensor:
+    """Keyframes ``valid..K-1`` replaced by the linear extrapolation of the mean step of the last
+    ``average`` valid ones (Ex4DGS ``expand_duration``). ``keys [M, K, C]`` -> ``[M, K, C]``."""
+    total = keys.shape[1]
+    if valid >= total:
+        return keys
+    average = max(1, min(average, valid - 1))
+    step = (keys[:, valid - average : valid] - keys[:, valid - average - 1 : valid - 1]).mean(
+        dim=1, keepdim=True
+    )
+    n = torch.arange(1, total - valid + 1, device=keys.device, dtype=keys.dtype).view(1, -1, 1)
+    return torch.cat([keys[:, :valid], keys[:, valid - 1 : valid] + n * step], dim=1)
+
+
+# -- config ----------------------------------------------------------------------------------------------
+@dataclass
+class Ex4DGSConfig(ExpertConfig):
+    """Ex4DGS hyperparameters. Defaults: N3V (``configs/N3V/n3v_base.json`` over
+    ``arguments/__init__.py``)."""
+
+    sh_degree: int = 3
+    max_init_points: int | None = None
+    """Keep at most this many initial points (Ex4DGS: first-frame sparse SfM only)."""
+    interval: int = 10
+    """Frames between keyframes (``time_interval``)."""
+    time_pad: int = 2
+    """``time_pad``: 2 on N3V, 3 on Technicolor; ``τs = time_pad + interval``."""
+    var_pad: float = 3.0
+    """Minimum temporal width in frames (``var_pad``; ``v_min = var_pad / I``)."""
+    start_duration: int = 10
+    """Frames trained before the first growth (``start_duration``)."""
+    grow_from: int = 500
+    """First growth after this iteration (``extract_from_iter``)."""
+    grow_every: int = 400
+    """Iterations between growths by ``interval`` frames (``progressive_growing_steps``, N3V 400)."""
+    extract_every: int = 3980
+    """Extra static-to-dynamic conversions at the worst time bin (``extracton_interval``, N3V 3980)."""
+    extract_percentile: float = 0.98
+    """Quantile of the drift score above which visible static Gaussians become dynamic (Train 0.99)."""
+    static_reg: float = 1e-4
+    """Weight of ``mean log(||d|| + 0.001)`` (after ``reg_from``)."""
+    motion_reg: float = 1e-4
+    """Weight of ``mean ||P_0 - P_k||`` over dynamic keyframes (after ``reg_from``)."""
+    reg_from: int = 500
+    random_background: bool | None = None
+    """Random background colour per training render (``random_background``); evaluation uses the scene's.
+    None = on for multi-view captures only: on monocular data composited on a synthetic background
+    (D-NeRF) the ground truth cannot follow a random background (deviation; Ex4DGS has no such data)."""
+    spatial_lr_scale: float | None = None
+    """Multiplier of the position learning rates; None = scene extent (``cameras_extent``)."""
+    means_lr: float = 1.6e-4
+    means_lr_final: float = 1.6e-6
+    means_lr_max_steps: int = 30_000
+    motion_means_lr: float = 1.6e-4
+    """Keyframe positions, times the extent, **constant** (the original schedule never runs)."""
+    sh0_lr: float = 2.5e-3
+    """SH DC of both sets (deviation: Technicolor Birthday/Painter/Train use 2.5e-4 for the dynamic set)."""
+    shN_lr: float = 2.5e-3 / 20
+    opacities_lr: float = 0.05
+    motion_opacities_lr: float = 0.01
+    scales_lr: float = 5e-3
+    quats_lr: float = 1e-5
+    """Static rotation (1e-5 in the N3V config)."""
+    motion_quats_lr: float = 1e-3
+    drift_lr: float = 1e-4
+    centers_lr: float = 0.01
+    widths_lr: float = 1e-4
+    adjust_every: int = 1200
+    """Widen the temporal widths near the ends and clamp the centres every this many iterations ..."""
+    adjust_until: int = 27_000
+    """... until here (``adjust_temp_opa``)."""
+    strategy: Strategy = field(default_factory=lambda: Ex4DGSStrategy())
+    train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations=40_000, lambda_dssim=0.2))
+    """N3V: 40k iterations, 0.8 L1 + 0.2 D-SSIM."""
+
+    def __post_init__(self) -> None:
+        if isinstance(self.strategy, Ex4DGSStrategy):
+            self.strategy.interval = self.interval
+
+    @property
+    def shift(self) -> int:
+        """``τs = time_pad + interval`` (the cubic interpolation's extra keyframe in front)."""
+        return self.time_pad + self.interval
+
+    @classmethod
+    def presets(cls) -> dict[str, Callable[[], Ex4DGSConfig]]:
+        return {"paper": cls, "quick": cls.quick}
+
+    @classmethod
+    def quick(cls) -> Ex4DGSConfig:
+        """CPU minutes: every schedule shrunk from 40k to the static baseline's 600 iterations."""
+        iterations = QUICK_ITERATIONS  # quick: 40k -> 600
+        return cls(
+            max_init_points=5000,  # quick: CPU rasterizer cost
+            grow_from=30,
+            grow_every=30,  # quick: 500/400 -> 30/30 so 150 D-NeRF frames are reached at ~450
+            extract_every=300,
+            reg_from=30,
+            means_lr_max_steps=iterations,
+            adjust_every=120,
+            adjust_until=int(iterations * 0.9),
+            strategy=Ex4DGSStrategy(
+                densify_from=30,
+                densify_until=int(iterations * 0.75),
+                densify_every=50,
+                error_prune_from=int(iterations * 0.5),
+                prune_from=int(iterations * 0.3),
+                prune_every=150,
+                small_radius=0.0,
+            ),
+            # quick: densify every 50 (N3V 300) from 30, error pruning from 50% (N3V 20k of 40k); no
+            # small-radius pruning: 5 px at N3V's 1352x1014 is below one pixel at the quick resolution
+            train=TrainConfig(iterations=iterations, lambda_dssim=0.2, resolution_scale=QUICK_RESOLUTION),
+        )
+
+
+# -- densification -----------------------------------------------------------------------------------------
+@dataclass
+class Ex4DGSStrategy(ADCStrategy):
+    """Ex4DGS ``densify_and_prune``: 3DGS clone/split with per-set thresholds, opacity pruning at 0.01 (of
+    ``sigmoid`` of each set's own logit), no resets; plus back-tracking pruning (``error_*``) and removal
+    of Gaussians never seen with weight > ``invisible_weight`` or thinner than ``small_radius`` pixels.
+
+    Split children of dynamic Gaussians move every keyframe by the same local offset rotated by that
+    keyframe's rotation, get centres jittered by ``max(|c1 - c0| / 3, 2 / I) N(0, 1)`` and log-widths 2.
+    """
+
+    densify_from: int = 500
+    densify_until: int = 30_000
+    densify_every: int = 300
+    grad_threshold: float = 2e-4
+    """Static sets (``densify_grad_threshold``)."""
+    dynamic_grad_threshold: float = 1e-4
+    prune_opacity: float = 0.01
+    reset_every: int = NEVER
+    """Ex4DGS never calls its ``reset_opacity``."""
+    reset_at_densify_from_if_white: bool = False
+    error_prune_from: int = 20_000
+    """Back-tracking pruning every 5 densification intervals after this: mean L1 > ``error_l1`` or
+    0 < mean SSIM < ``error_ssim``."""
+    error_l1: float = 0.08
+    error_ssim: float = 0.6
+    prune_from: int = 6000
+    """``prune_invisible`` / ``prune_small`` from here every ``prune_every`` iterations (an epoch)."""
+    prune_every: int = 3000
+    invisible_weight: float = 0.01
+    small_radius: float = 5.0
+    interval: int = 10
+    """Keyframe interval (copied from the config by the expert)."""
+
+    @torch.no_grad()
+    def _split(self, params, optimizers, mask: Tensor) -> None:
+        index = mask.nonzero(as_tuple=True)[0]
+        dynamic = params["dynamic"][index]
+        scales = torch.exp(params["scales"][index])  # [M, 3]
+        local = torch.randn(self.split_samples, len(index), 3, device=scales.device) * scales  # [S, M, 3]
+        static_rot = quat_to_rotmat(nn.functional.normalize(params["quats"][index], dim=-1))  # [M, 3, 3]
+        key_rot = quat_to_rotmat(
+            nn.functional.normalize(params["motion_quats"][index], dim=-1)
+        )  # [M, K, 3, 3]
+        c = params["centers"][index]
+        jitter = torch.maximum((c[:, 1] - c[:, 0]).abs() / 3, torch.full_like(c[:, 0], 2.0 / self.interval))
+
+        def children(key: str, v: Tensor) -> Tensor:
+            parents = v[index]
+            if key == "means":
+                kids = (parents[None] + torch.einsum("mij,smj->smi", static_rot, local)).reshape(-1, 3)
+            elif key == "motion_means":
+                kids = (parents[None] + torch.einsum("mkij,smj->smki", key_rot, local)).flatten(0, 1)
+            elif key == "scales":
+                kids = torch.log(scales / self.split_scale_divisor).repeat(self.split_samples, 1)
+            elif key == "centers":
+                moved = parents[None] + jitter[None, :, None] * torch.randn(
+                    self.split_samples, *parents.shape
+                )
+                kids = torch.where(dynamic[None, :, None], moved, parents[None]).flatten(0, 1)
+            elif key == "widths":
+                kids = torch.where(dynamic[:, None], torch.full_like(parents, 2.0), parents).repeat(
+                    self.split_samples, 1
+                )
+            else:
+                kids = parents.repeat(self.split_samples, *([1] * (v.ndim - 1)))
+            return torch.cat([v[~mask], kids])
+
+        def moments(key: str, v: Tensor) -> Tensor:
+            return torch.cat([v[~mask], v.new_zeros((self.split_samples * len(index), *v.shape[1:]))])
+
+        ops.update_params(params, optimizers, children, moments)
+
+    @torch.no_grad()
+    def _densify_and_prune(self, params, optimizers, state: dict, step: int) -> None:
+        extent = state["scene_scale"]
+        grads = state["grad2d"] / state["count"].clamp(min=1)
+        dynamic = params["dynamic"]
+        threshold = torch.where(dynamic, self.dynamic_grad_threshold, self.grad_threshold)
+        small = torch.exp(params["scales"]).max(dim=1).values <= self.percent_dense * extent
+        candidates = grads >= threshold
+        clone, to_split = candidates & small, candidates & ~small
+        ops.duplicate(params, optimizers, clone)
+        self._split(params, optimizers, torch.cat([to_split, to_split.new_zeros(int(clone.sum()))]))
+        prune = base_opacity(params) < self.prune_opacity
+        if step > self.error_prune_from and step % (5 * self.densify_every) == 0:
+            count = params["err_count"].clamp_min(1)
+            l1, ssim = params["err_sum"] / count, params["ssim_sum"] / count
+            prune |= (params["err_count"] > 0) & (
+                (l1 > self.error_l1) | ((ssim > 0) & (ssim < self.error_ssim))
+            )
+        ops.remove(params, optimizers, prune)
+        self._reset_stats(state, params["means"].shape[0], params["means"].detach())
+        state["last_refine"] = {
+            "clone": int(clone.sum()),
+            "split": int(to_split.sum()),
+            "prune": int(prune.sum()),
+        }
+
+    def step_post_backward(self, params, optimizers, state, step: int, info: dict) -> None:
+        super().step_post_backward(params, optimizers, state, step, info)
+        if step > self.prune_from and step % self.prune_every == 0:
+            seen = params["weight_max"] > self.invisible_weight
+            thin = params["radius_min"] < self.small_radius
+            ops.remove(params, optimizers, ~seen | thin)
+            self._reset_stats(state, params["means"].shape[0], params["means"].detach())
+
+
+def base_opacity(params) -> Tensor:
+    """``sigmoid`` of each Gaussian's own set's opacity logit ``[N]`` (no temporal factor)."""
+    return torch.sigmoid(torch.where(params["dynamic"], params["motion_opacities"], params["opacities"]))
+
+
+# -- expert ------------------------------------------------------------------------------------------------
+class Ex4DGSExpert(Expert):
+    """Ex4DGS: static (drift) and dynamic (keyframe) Gaussians in one ``splats`` with a ``dynamic`` flag."""
+
+    name = "ex4dgs"
+    config_class = Ex4DGSConfig
+
+    def __init__(
+        self,
+        config: Ex4DGSConfig,
+        splats: nn.ParameterDict,
+        spatial_lr_scale: float,
+        first_time: float,
+        frame_step: float,
+        num_frames: int,
+        extent: float,
+        multiview: bool,
+    ) -> None:
+        super().__init__(config, splats)
+        self.spatial_lr_scale = spatial_lr_scale
+        self.first_time, self.frame_step, self.num_frames, self.extent = (
+            first_time,
+            frame_step,
+            num_frames,
+            extent,
+        )
+        self.random_background = (
+            config.random_background if config.random_background is not None else multiview
+        )
+        self.register_buffer("duration", torch.tensor(float(min(config.start_duration, num_frames))))
+        self.register_buffer("bin_errors", torch.zeros(math.ceil(num_frames / config.interval), 2))
+        self.active_sh_degree = 0
+        self._probe: tuple[Tensor, Tensor, float] | None = None  # (probe image, per-Gaussian probe, frame)
+
+    @classmethod
+    def from_scene(cls, scene: Scene, config: Ex4DGSConfig) -> Ex4DGSExpert:
+        times = scene.times
+        step = float((times[1:] - times[:-1]).median()) if len(times) > 1 else 1.0
+        points = thin_points(scene_points(scene), config.max_init_points, config.train.seed)
+        n = len(points)
+        k = keyframe_count(scene.num_frames, config.shift, config.interval)
+        stats = {
+            "err_sum": torch.zeros(n),
+            "ssim_sum": torch.zeros(n),
+            "err_count": torch.zeros(n),
+            "err_min": torch.full((n,), 1000.0),
+            "err_min_time": torch.full((n,), -1.0),
+            "weight_max": torch.zeros(n),
+            "radius_min": torch.full((n,), 1000.0),
+        }
+        extra = {
+            "drift": torch.zeros(n, 3),
+            "motion_means": points.xyz.float()[:, None].repeat(1, k, 1),
+            "motion_quats": torch.tensor([1.0, 0, 0, 0]).repeat(n, k, 1),
+            "motion_opacities": torch.logit(torch.full((n,), 0.1)),
+            "centers": torch.zeros(n, 2),
+            "widths": torch.zeros(n, 2),
+        }
+        splats = init_splats(points, config.sh_degree, extra=extra)
+        for key, value in {"dynamic": torch.zeros(n, dtype=torch.bool), **stats}.items():
+            splats[key] = nn.Parameter(value, requires_grad=False)
+        scale = config.spatial_lr_scale if config.spatial_lr_scale is not None else scene.extent
+        return cls(
+            config, splats, scale, float(times[0]), step, scene.num_frames, scene.extent, scene.multiview
+        )
+
+    # -- time ---------------------------------------------------------------------------------------------
+    def frame_index(self, t: float) -> float:
+        """Integer-frame time of normalised scene time ``t`` (Ex4DGS ``timestamp = j - start``)."""
+        return (t - self.first_time) / self.frame_step
+
+    # -- rendering ---------------------------------------------------------------------------------------
+    def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
+        s, c = self.splats, self.config
+        f = self.frame_index(t)
+        means = s["means"] + s["drift"] * f / self.duration
+        quats = nn.functional.normalize(s["quats"], dim=-1)
+        opacities = torch.sigmoid(s["opacities"])
+        idx = s["dynamic"].nonzero(as_tuple=True)[0]
+        if idx.numel():
+            k, delta = keyframe_position(f, c.shift, c.interval)
+            key_q = s["motion_quats"][idx]
+            means = means.index_put((idx,), catmull_rom(s["motion_means"][idx], k, delta))
+            quats = quats.index_put((idx,), slerp(key_q[:, k], key_q[:, k + 1], delta))
+            widths = s["widths"][idx]
+            if widths.requires_grad:  # e^v overflows for the initial widths (frames): inf/inf gradients
+                widths.register_hook(torch.nan_to_num)  # Ex4DGS nan_to_num's these gradients too
+            temporal = temporal_opacity(
+                s["centers"][idx], widths, (f + c.shift) / c.interval, c.var_pad / c.interval
+            )
+            opacities = opacities.index_put((idx,), torch.sigmoid(s["motion_opacities"][idx]) * temporal)
+        return GaussianFrame(
+            means=means,
+            quats=quats,
+            scales=torch.exp(s["scales"]),
+            opacities=opacities,
+            sh=sh_coeffs(s, self.active_sh_degree),
+        )
+
+    def render(
+        self, camera: Camera, background: Tensor | None, backend: str = "auto", return_stats: bool = False
+    ) -> tuple[Tensor, RenderOutput, GaussianFrame]:
+        """Antialiased render (0.1 dilation). While training: random background and the back-tracking
+        probe (3 extra channels, kept in the graph with zero weight; see ``observe``)."""
+        frame = self.frame(camera.time, camera)
+        if not self.training:
+            out = rasterize(
+                frame,
+                camera,
+                background=background,
+                antialiased=True,
+                return_stats=return_stats,
+                backend=backend,
+            )
+            return out.image, out, frame
+        if self.random_background:
+            background = torch.rand(3, device=frame.device)
+        probe = torch.zeros(len(frame), 3, device=frame.device, requires_grad=True)
+        rgb = eval_sh(frame.sh, view_dirs(frame.means, camera), self.active_sh_degree)
+        probed = frame.with_colors(torch.cat([rgb, probe], dim=1))
+        bg = torch.cat([background, background.new_zeros(3)]) if background is not None else None
+        out = rasterize(
+            probed, camera, background=bg, antialiased=True, return_stats=return_stats, backend=backend
+        )
+        probe_image = out.image[..., 3:]
+        self._probe = (probe_image, probe, self.frame_index(camera.time))
+        image = out.image[..., :3] + 0.0 * probe_image.sum(-1, keepdim=True)  # keeps the probe in the graph
+        return image, out, frame
+
+    # -- training hooks -----------------------------------------------------------------------------------
+    def on_step(self, step: int) -> bool:
+        self.active_sh_degree = active_sh_degree(step, self.config.sh_degree)
+        c = self.config
+        if c.adjust_every and step % c.adjust_every == 0 and step < c.adjust_until:
+            self._adjust_temporal_opacity()
+        return False
+
+    def observe(self, step: int, view: View, rgb: Tensor, target: Tensor, out: RenderOutput) -> Tensor | None:
+        """Back-tracking: the probe image's gradient becomes ``[1, L1, SSIM] / acc`` per pixel, so each
+        Gaussian's probe gradient is ``Σ_p w_ip [1, L1_p, SSIM_p] / acc_p``; statistics are updated when it
+        arrives. Also records the view's L1 in its time bin (worst-bin extraction)."""
+        if self._probe is None:
+            return None
+        probe_image, probe, frame = self._probe
+        self._probe = None
+        with torch.no_grad():
+            l1_map = (rgb - target).abs().mean(-1)
+            ssim_pix = ssim_map(rgb.clamp(0, 1), target).mean(-1)
+            acc = out.alpha.clamp_min(1e-4)
+            weights = torch.stack([torch.ones_like(acc), l1_map, ssim_pix], dim=-1) / acc[..., None]
+            b = min(int(frame // self.config.interval), self.bin_errors.shape[0] - 1)
+            self.bin_errors[b] += torch.stack([l1_map.mean(), torch.ones(())])
+        probe_image.register_hook(lambda grad: weights)
+        radii = out.info.get("radii")
+        probe.register_hook(lambda grad: self._accumulate(grad, frame, radii))
+        return None
+
+    @torch.no_grad()
+    def _accumulate(self, grad: Tensor, frame: float, radii: Tensor | None) -> None:
+        """Per-Gaussian back-tracked ``grad [N, 3]`` = (weight, L1, SSIM) sums of one view."""
+        s = self.splats
+        w = grad[:, 0]
+        seen = w > 0
+        l1 = grad[:, 1] / w.clamp_min(1e-4)
+        ssim = grad[:, 2] / w.clamp_min(1e-4)
+        better = seen & (w > 0.01) & (l1 < s["err_min"])
+        s["err_sum"].add_(torch.where(seen, l1, 0.0))
+        s["ssim_sum"].add_(torch.where(seen, ssim, 0.0))
+        s["err_count"].add_(seen.float())
+        s["err_min_time"].copy_(torch.where(better, frame, s["err_min_time"]))
+        s["err_min"].copy_(torch.where(better, l1, s["err_min"]))
+        s["weight_max"].copy_(torch.maximum(s["weight_max"], w))
+        if radii is not None:
+            s["radius_min"].copy_(
+                torch.where(seen, torch.minimum(s["radius_min"], radii.float()), s["radius_min"])
+            )
+
+    def select_views(
+        self, step: int, views: list[View], batch_size: int, generator: torch.Generator
+    ) -> list[int]:
+        """Progressive schedule: views of frames below the current duration; grow by ``interval`` frames every
+        ``grow_every`` iterations (then convert with a view of the newest frames), and convert every
+        ``extract_every`` iterations with a view of the worst time bin."""
+        c = self.config
+        grow = step > c.grow_from and step % c.grow_every == 0 and int(self.duration) < self.num_frames
+        if grow:
+            self._grow(min(int(self.duration) + c.interval, self.num_frames))
+        frames = torch.tensor([self.frame_index(v.camera.time) for v in views])
+        if grow:
+            pool = ((frames >= int(self.duration) - c.interval) & (frames < self.duration)).nonzero(
+                as_tuple=True
+            )[0]
+        elif c.extract_every and step % c.extract_every == 0 and self.bin_errors[:, 1].any():
+            mean = self.bin_errors[:, 0] / self.bin_errors[:, 1].clamp_min(1)
+            worst = int(mean.argmax())
+            self.bin_errors[worst] = 0
+            pool = ((frames // c.interval) == worst).nonzero(as_tuple=True)[0]
+        else:
+            pool = torch.empty(0, dtype=torch.long)
+        if pool.numel():
+            pick = int(pool[torch.randint(pool.numel(), (1,), generator=generator)])
+            self.convert(views[pick].camera)
+            return [pick]
+        eligible = (frames < self.duration).nonzero(as_tuple=True)[0]
+        return eligible[torch.randint(eligible.numel(), (batch_size,), generator=generator)].tolist()
+
+    @torch.no_grad()
+    def _grow(self, duration: int) -> None:
+        """Extend the trained frames; dynamic keyframes past the old range are re-extrapolated."""
+        c, s = self.config, self.splats
+        valid = keyframe_count(float(self.duration), c.shift, c.interval)
+        idx = s["dynamic"].nonzero(as_tuple=True)[0]
+        if idx.numel():
+            s["motion_means"].data[idx] = extrapolate_keyframes(s["motion_means"].data[idx], valid)
+            s["motion_quats"].data[idx] = extrapolate_keyframes(s["motion_quats"].data[idx], valid)
+        self.duration.fill_(float(duration))
+
+    @torch.no_grad()
+    def convert(self, camera: Camera) -> int:
+        """Static-to-dynamic conversion (``extract_dynamic_points_from_static``) seen from ``camera``;
+        returns how many Gaussians became dynamic.
+
+        Score of a visible static Gaussian: ``||d|| / ||x - T||²`` (``T`` the world-to-camera translation,
+        as the original), over its maximum; those above the ``extract_percentile`` quantile with
+        ``||d|| > 1e-6 extent`` and a back-tracked best frame become dynamic.
+        """
+        c, s = self.config, self.splats
+        out = rasterize(
+            self.frame(camera.time, camera).detach(),
+            camera,
+            antialiased=True,
+            return_depth=False,
+            return_stats=True,
+        )
+        static = ~s["dynamic"] & out.info["visible"]
+        if static.sum() < 2:
+            return 0
+        drift = s["drift"].norm(dim=-1)
+        score = drift / ((s["means"] - camera.world_to_camera[:3, 3]).norm(dim=-1) ** 2 + 1e-6)
+        score = score / (score[static].max() + 1e-6)
+        threshold = torch.quantile(score[static], c.extract_percentile)
+        chosen = static & (score > threshold) & (drift > 1e-6 * self.extent) & (s["err_min_time"] >= 0)
+        idx = chosen.nonzero(as_tuple=True)[0]
+        if not idx.numel():
+            return 0
+        duration = max(float(self.duration), float(c.interval))
+        total = s["motion_means"].shape[1]
+        valid = min(keyframe_count(duration, c.shift, c.interval), total)
+        keys = initial_keyframes(s["means"][idx], s["drift"][idx], c.interval, duration, valid)
+        keys = torch.cat([keys, keys.new_zeros(len(idx), total - valid, 3)], dim=1)  # filled by extrapolation
+        t = s["err_min_time"][idx]
+        lo, hi = (c.shift + 1) / c.interval, (c.shift + duration - 1) / c.interval
+        centers = torch.stack(
+            [(t / 2 + c.shift) / c.interval, ((duration + t) / 2 + c.shift) / c.interval], dim=1
+        )
+        values = {
+            "motion_means": extrapolate_keyframes(keys, valid),
+            "motion_quats": s["quats"][idx][:, None].repeat(1, total, 1),
+            "motion_opacities": s["opacities"][idx],
+            "centers": centers.clamp(lo, hi),
+            "widths": torch.stack([t + c.time_pad, duration - t + c.time_pad], dim=1),
+        }
+        for key, value in values.items():
+            s[key].data[idx] = value
+        s["dynamic"][idx] = True
+        return int(idx.numel())
+
+    @torch.no_grad()
+    def _adjust_temporal_opacity(self) -> None:
+        """Ex4DGS ``adjust_temp_opa``: double (at least 1) the width on a side whose centre is within 0.2
+        keyframes of that end of the trained range, clamp the centres inside it, floor widths at 0.5."""
+        c, s = self.config, self.splats
+        idx = s["dynamic"].nonzero(as_tuple=True)[0]
+        if not idx.numel():
+            return
+        lo, hi = c.shift / c.interval + 0.2, (float(self.duration) + c.shift) / c.interval - 0.2
+        centers, widths = s["centers"].data[idx], s["widths"].data[idx]
+        new = widths.clone()
+        new[:, 1] = torch.where((centers > hi).any(dim=1), widths[:, 1].clamp_min(1) * 2, widths[:, 1])
+        new[:, 0] = torch.where((centers < lo).any(dim=1), widths[:, 0].clamp_min(1) * 2, widths[:, 0])
+        s["widths"].data[idx] = torch.where(widths < 0.5, torch.full_like(widths, 0.5), new)
+        s["centers"].data[idx] = centers.clamp(lo, max(lo, hi))
+
+    def regularization(self, step: int, frame: GaussianFrame | None = None) -> Tensor:
+        c, s = self.config, self.splats
+        loss = s["means"].new_zeros(())
+        if step <= c.reg_from:
+            return loss
+        static, dynamic = ~s["dynamic"], s["dynamic"]
+        if static.any():
+            loss = loss + c.static_reg * torch.log(s["drift"][static].norm(dim=-1) + 0.001).mean()
+        if dynamic.any():
+            keys = s["motion_means"][dynamic]
+            loss = loss + c.motion_reg * (keys[:, :1] - keys[:, 1:]).norm(dim=-1).mean()
+        return loss
+
+    def param_groups(self) -> list[ParamGroup]:
+        c, sc, s = self.config, self.spatial_lr_scale, self.splats
+        constant = [
+            ("motion_means", c.motion_means_lr * sc),
+            ("sh0", c.sh0_lr),
+            ("shN", c.shN_lr),
+            ("opacities", c.opacities_lr),
+            ("motion_opacities", c.motion_opacities_lr),
+            ("scales", c.scales_lr),
+            ("quats", c.quats_lr),
+            ("motion_quats", c.motion_quats_lr),
+            ("drift", c.drift_lr),
+            ("centers", c.centers_lr),
+            ("widths", c.widths_lr),
+        ]
+        groups = [
+            ParamGroup(
+                "means",
+                [s["means"]],
+                c.means_lr * sc,
+                lr_final=c.means_lr_final * sc,
+                max_steps=c.means_lr_max_steps,
+                optimizer="radam",
+            )
+        ]
+        return groups + [ParamGroup(k, [s[k]], lr, optimizer="radam") for k, lr in constant]
+
+    def strategy(self) -> Strategy:
+        return self.config.strategy

@@ -1,0 +1,485 @@
+"""STG, Spacetime Gaussian Feature Splatting (Li et al., CVPR 2024).
+
+Each Gaussian lives around its own time ``μτ`` and moves on a polynomial. With ``Δt = t - μτ``::
+
+    μ(t) = μ + b1 Δt + b2 Δt² + b3 Δt³           cubic polynomial per axis (motion [N, 9])
+    q(t) = normalize(q + Δt ω)                    linear rotation velocity
+    o(t) = sigmoid(o) exp(-(Δt / exp(sτ))²)       temporal radial-basis opacity
+
+``Δt`` is detached in the motion, the rotation and the features, so ``μτ`` learns only through the
+opacity. Colour models (``STGConfig.color``):
+
+* ``"full"``: 9 splatted channels ``[albedo, specular, Δt · f_t]`` decoded per pixel with the camera
+  rays (``stg_decoder.FeatureDecoder``; ``decode(features, camera)``);
+* ``"sh"``: SH degree 3, the variant MoE-GS trained on N3V (``thirdparty/polynomial`` in MoE-GS-studio:
+  RAdam, no decoder, the Ex4DGS rasteriser with its 0.1 dilation);
+* ``"lite"``: raw per-Gaussian RGB (STG lite).
+
+Time is the segment's local time ``(j - start) / D``. ``STGSegments`` answers any global time with the
+model of the segment holding it (MoE-GS: two 150-frame models on N3V); ``train_segments`` trains them
+with the one training loop. Each step renders two cameras of one timestamp (STG ``batch = 2``).
+
+Sources: ``oppo-us-research/SpacetimeGaussians`` @ 427abfc (``thirdparty/gaussian_splatting/scene/
+oursfull.py``, ``renderer/__init__.py``, ``train.py``, ``helper_train.py``, ``configs/``);
+``specs/experts_noncanonical.md`` section 1; ``specs/official_moegs.md`` sections 8-9.
+"""
+
+from __future__ import annotations
+
+import bisect
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import torch
+from torch import Tensor, nn
+
+from moegs.camera import Camera
+from moegs.data.scene import PointCloud, Scene, View
+from moegs.experts.base import Expert, ExpertConfig, ParamGroup
+from moegs.experts.canonical import QUICK_ITERATIONS
+from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats
+from moegs.experts.static import QUICK_RESOLUTION, scene_points, thin_points
+from moegs.experts.stg_decoder import FeatureDecoder
+from moegs.gaussians import GaussianFrame
+from moegs.render import RenderOutput, rasterize
+from moegs.train.config import TrainConfig
+from moegs.train.strategy import ADCStrategy, Strategy, ops
+
+COLOR_MODELS = ("full", "sh", "lite")
+TIME_EPS = 1e-6  # times within this of a segment start belong to it (float32 vs float64 frame times)
+
+
+# -- formulas ----------------------------------------------------------------------------------------
+def polynomial_motion(means: Tensor, motion: Tensor, dt: Tensor) -> Tensor:
+    """``μ + b1 Δt + b2 Δt² + b3 Δt³``; ``means [N, 3]``, ``motion [N, 9]`` = [b1, b2, b3], ``dt [N, 1]``."""
+    return means + motion[:, 0:3] * dt + motion[:, 3:6] * dt**2 + motion[:, 6:9] * dt**3
+
+
+def linear_rotation(quats: Tensor, omega: Tensor, dt: Tensor) -> Tensor:
+    """``normalize(q + Δt ω)``; ``quats, omega [N, 4]``, ``dt [N, 1]``."""
+    return nn.functional.normalize(quats + dt * omega, dim=-1)
+
+
+def temporal_opacity(opacity_logits: Tensor, dt: Tensor, log_scale: Tensor) -> Tensor:
+    """``sigmoid(o) exp(-(Δt / exp(sτ))²)``; all ``[N]`` (STG ``trbfunction``)."""
+    return torch.sigmoid(opacity_logits) * torch.exp(-((dt / torch.exp(log_scale)) ** 2))
+
+
+def segment_index(t: float, starts: list[float]) -> int:
+    """Index of the segment holding normalised time ``t`` for sorted segment ``starts`` (the first
+    segment also takes times before it, the last one times after its end)."""
+    if not starts:
+        raise ValueError("segment_index needs at least one segment")
+    return max(0, bisect.bisect_right(starts, t + TIME_EPS) - 1)
+
+
+def segment_bounds(times: list[float], frames_per_segment: int | None) -> list[tuple[float, float]]:
+    """``[(start, stop)]`` normalised-time windows of consecutive ``frames_per_segment`` frames.
+
+    ``times`` are the scene's sorted distinct frame times; ``stop`` is the next segment's first time
+    (the last segment ends one frame step after its last frame), so local time ``(t - start) / (stop -
+    start)`` is STG's ``(j - start) / D``.
+    """
+    if not times:
+        raise ValueError("segment_bounds needs at least one time")
+    step = (times[-1] - times[0]) / (len(times) - 1) if len(times) > 1 else 1.0
+    size = frames_per_segment or len(times)
+    if size < 1:
+        raise ValueError(f"frames_per_segment must be >= 1, got {frames_per_segment}")
+    starts = times[::size]
+    stops = [*starts[1:], times[-1] + step]
+    return list(zip(starts, stops, strict=True))
+
+
+# -- config ----------------------------------------------------------------------------------------------
+@dataclass
+class STGConfig(ExpertConfig):
+    """STG hyperparameters. Defaults: the full model with the N3V settings (``configs/n3d_full``,
+    ``arguments/__init__.py``); ``color="sh"`` gives MoE-GS's N3V variant."""
+
+    color: str = "full"
+    """Colour model: ``"full"`` (features + decoder), ``"sh"`` (MoE-GS N3V) or ``"lite"`` (raw RGB)."""
+    decoder_activation: str = "sigmoid"
+    """Full model: ``"sigmoid"`` (N3V ``sandwich``) or ``"clamp"`` (Technicolor ``sandwichnoact``)."""
+    sh_degree: int = 3
+    """SH degree of the ``"sh"`` variant (+1 every 1000 iterations)."""
+    segment_frames: int | None = None
+    """Frames per segment model (STG: 50; MoE-GS N3V: 150); None = one model for the whole scene."""
+    max_init_points: int | None = None
+    """Keep at most this many initial points (random subset); None keeps all (STG: every frame's SfM)."""
+    trbf_scale_init: float = 0.0
+    """Initial log temporal scale ``sτ`` (``-trbfslinit``: 0 on N3V, -2 on Technicolor)."""
+    spatial_lr_scale: float | None = None
+    """Multiplier of the position / motion learning rates; None = scene extent (``cameras_extent``)."""
+    means_lr: float = 1.6e-4
+    means_lr_final: float = 1.6e-6
+    means_lr_max_steps: int = 30_000
+    motion_lr: float = 1.6e-4 * 0.5 * 3.5
+    """Polynomial coefficients: ``position_lr_init · 0.5 · movelr`` (movelr 3.5), times the extent;
+    constant."""
+    features_lr: float = 2.5e-3
+    """Albedo + specular features (``feature_lr``); SH DC in the ``"sh"`` variant; RGB in ``"lite"``."""
+    features_t_lr: float = 1e-3
+    shN_lr: float = 2.5e-3 / 20
+    opacities_lr: float = 0.05
+    scales_lr: float = 1.5e-3
+    """N3V configs 1.5e-3 (3e-3 coffee_martini / flame_salmon_1); code default and Technicolor 5e-3."""
+    quats_lr: float = 1e-3
+    omega_lr: float = 1e-4
+    trbf_center_lr: float = 1e-4
+    trbf_scale_lr: float = 0.03
+    decoder_lr: float = 1e-4
+    optimizer: str = "adam"
+    """``"adam"`` (STG); ``"radam"`` for the MoE-GS SH variant."""
+    antialiased: bool = False
+    """Render with the Ex4DGS 0.1 dilation (MoE-GS SH variant); STG's own rasteriser uses 0.3."""
+    views_per_step: int = 2
+    """Cameras of one timestamp per step (STG ``batch = 2``; 1 on monocular data)."""
+    strategy: Strategy = field(default_factory=lambda: STGStrategy())
+    train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations=30_000, lambda_dssim=0.2))
+    """30k iterations; loss 0.8 L1 + 0.2 (1 - SSIM)."""
+
+    def __post_init__(self) -> None:
+        if self.color not in COLOR_MODELS:
+            raise ValueError(f"STGConfig.color must be one of {COLOR_MODELS}, got {self.color!r}")
+        if self.views_per_step < 1:
+            raise ValueError(f"STGConfig.views_per_step must be >= 1, got {self.views_per_step}")
+
+    @classmethod
+    def presets(cls) -> dict[str, Callable[[], STGConfig]]:
+        return {"paper": cls, "quick": cls.quick, "moe_sh": cls.moe_sh}
+
+    @classmethod
+    def moe_sh(cls) -> STGConfig:
+        """MoE-GS's N3V STG†: SH degree 3, RAdam, Ex4DGS rasteriser, two 150-frame segments."""
+        return cls(color="sh", optimizer="radam", antialiased=True, segment_frames=150)
+
+    @classmethod
+    def quick(cls) -> STGConfig:
+        """CPU minutes: full model, every schedule shrunk from 30k to 600 iterations."""
+        iterations = QUICK_ITERATIONS  # quick: 30k -> the static baseline's 600 (50x shorter)
+        return cls(
+            max_init_points=5000,  # quick: CPU rasterizer cost
+            means_lr_max_steps=iterations,
+            strategy=STGStrategy(
+                densify_from=20,
+                densify_until=360,
+                densify_every=25,
+                max_densify_events=10,
+                prune_until=360,
+                reset_at=(180,),
+            ),
+            # quick: 500/9000/100 -> 20/360/25 with 10 events (STG 6), one reset (STG 3000 and 6000)
+            train=TrainConfig(iterations=iterations, lambda_dssim=0.2, resolution_scale=QUICK_RESOLUTION),
+        )
+
+
+# -- densification -----------------------------------------------------------------------------------------
+@dataclass
+class STGStrategy(ADCStrategy):
+    """STG ``controlgaussians`` (densify modes 1/3): the 3DGS statistics, then
+
+    * every ``densify_every`` iterations in (``densify_from``, ``densify_until``): the first
+      ``max_densify_events`` events clone/split (no pruning: STG builds the prune mask but never applies
+      it) and give every new Gaussian a time centre ``μτ ~ U(0, 1)``; later events prune opacity <
+      ``prune_opacity`` while ``step < prune_until``;
+    * opacity reset to ``min(o, 0.01)`` at the iterations ``reset_at``.
+
+    Deviation: the screen-space statistics use both views of a step (STG: only the last one).
+    """
+
+    densify_from: int = 500
+    densify_until: int = 9000
+    densify_every: int = 100
+    grad_threshold: float = 2e-4
+    max_densify_events: int = 6
+    """``desicnt``: 6 on N3V, 12 on Technicolor."""
+    prune_until: int = 7000
+    """Opacity pruning after the densification events stops here (modes 1/3: 7000; mode 2: 9000)."""
+    reset_at: tuple[int, ...] = (3000, 6000)
+    """Opacity resets (``opacity_reset_interval`` 3000 below ``densify_until`` 9000)."""
+    time_key: str = "trbf_center"
+
+    def initialize_state(self, scene_scale: float, white_background: bool = False) -> dict:
+        state = super().initialize_state(scene_scale, white_background)
+        state["events"] = 0
+        return state
+
+    @torch.no_grad()
+    def _clone_and_split(self, params, optimizers, state: dict) -> None:
+        extent = state["scene_scale"]
+        grads = state["grad2d"] / state["count"].clamp(min=1)
+        small = torch.exp(params["scales"]).max(dim=1).values <= self.percent_dense * extent
+        candidates = grads >= self.grad_threshold
+        clone, to_split = candidates & small, candidates & ~small
+        n = params["means"].shape[0]
+        ops.duplicate(params, optimizers, clone)
+        to_split = torch.cat([to_split, to_split.new_zeros(int(clone.sum()))])
+        ops.split(params, optimizers, to_split, self.split_samples, self.split_scale_divisor)
+        new = params["means"].shape[0] - (n - int(to_split.sum()))  # clones and children sit at the end
+        if new:
+            centres = params[self.time_key]
+            centres.data[-new:] = torch.rand(new, device=centres.device, dtype=centres.dtype)
+        state["last_refine"] = {"clone": int(clone.sum()), "split": int(to_split.sum())}
+
+    def step_post_backward(self, params, optimizers, state, step: int, info: dict) -> None:
+        if step < self.densify_until:
+            self._update_stats(params, state, info)
+            if step > self.densify_from and step % self.densify_every == 0:
+                if state["events"] < self.max_densify_events:
+                    self._clone_and_split(params, optimizers, state)
+                    state["events"] += 1
+                elif step < self.prune_until:
+                    ops.remove(params, optimizers, torch.sigmoid(params["opacities"]) < self.prune_opacity)
+                self._reset_stats(state, params["means"].shape[0], params["means"].detach())
+        if step in self.reset_at:
+            ops.reset_opacity(params, optimizers, self.reset_value)
+
+
+# -- expert ------------------------------------------------------------------------------------------------
+def _point_times(points: PointCloud, window: tuple[float, float], seed: int) -> Tensor:
+    """Per-point local birth times: the merged per-frame cloud's ``times`` mapped into ``window``, else
+    uniform random in [0, 1) (seeded; the scenes here have no per-frame SfM)."""
+    if points.times is not None:
+        return (points.times.to(torch.float32) - window[0]) / (window[1] - window[0])
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(len(points), generator=g)
+
+
+class STGExpert(Expert):
+    """One STG model of the scene's time window ``[start, stop)``, which it maps to STG's local time
+    ``(t - start) / (stop - start)`` (``(j - start) / D`` for frame ``j``)."""
+
+    name = "stg"
+    config_class = STGConfig
+
+    def __init__(
+        self,
+        config: STGConfig,
+        splats: nn.ParameterDict,
+        decoder: FeatureDecoder | None,
+        spatial_lr_scale: float,
+        window: tuple[float, float],
+    ) -> None:
+        super().__init__(config, splats, decoder)
+        self.spatial_lr_scale = spatial_lr_scale
+        self.window = window
+        self.active_sh_degree = 0
+
+    @classmethod
+    def from_scene(cls, scene: Scene, config: STGConfig) -> STGExpert:
+        """A model of the whole ``scene`` (use ``segment_scene`` / ``train_segments`` for segments)."""
+        points = thin_points(scene_points(scene), config.max_init_points, config.train.seed)
+        window = segment_bounds(sorted({v.camera.time for v in scene.train}), None)[0]
+        times = _point_times(points, window, config.train.seed)
+        n = len(points)
+        extra = {
+            "motion": torch.zeros(n, 9),
+            "omega": torch.zeros(n, 4),
+            "trbf_center": times,
+            "trbf_scale": torch.full((n,), config.trbf_scale_init),
+        }
+        if config.color == "full":
+            extra["features"] = torch.cat([points.rgb, points.rgb], dim=1).float()
+            extra["features_t"] = torch.zeros(n, 3)
+        elif config.color == "lite":
+            extra["rgb"] = points.rgb.float().clone()
+        splats = init_splats(points, config.sh_degree, extra=extra)
+        splats["scales"].data.clamp_(-10.0, 1.0)  # STG create_from_pcd clamps the log-scale to [-10, 1]
+        if config.color != "sh":
+            del splats["sh0"], splats["shN"]
+        decoder = FeatureDecoder(config.decoder_activation) if config.color == "full" else None
+        scale = config.spatial_lr_scale if config.spatial_lr_scale is not None else scene.extent
+        return cls(config, splats, decoder, scale, window)
+
+    # -- rendering ------------------------------------------------------------------------------------
+    def on_step(self, step: int) -> bool:
+        self.active_sh_degree = active_sh_degree(step, self.config.sh_degree)
+        return False
+
+    def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
+        s = self.splats
+        start, stop = self.window
+        dt = (t - start) / (stop - start) - s["trbf_center"]  # [N], local time
+        dt_motion = dt.detach()[:, None]
+        geometry = {
+            "means": polynomial_motion(s["means"], s["motion"], dt_motion),
+            "quats": linear_rotation(s["quats"], s["omega"], dt_motion),
+            "opacities": temporal_opacity(s["opacities"], dt, s["trbf_scale"]),
+        }
+        if self.config.color == "sh":
+            return activate(s, self.active_sh_degree, **geometry)
+        colors = (
+            torch.cat([s["features"], dt_motion * s["features_t"]], dim=1)
+            if self.config.color == "full"
+            else s["rgb"]
+        )
+        return GaussianFrame(scales=torch.exp(s["scales"]), colors=colors, **geometry)
+
+    def decode(self, features: Tensor, camera: Camera) -> Tensor:
+        return self.fields(features, camera) if self.config.color == "full" else features
+
+    def render(
+        self, camera: Camera, background: Tensor | None, backend: str = "auto", return_stats: bool = False
+    ) -> tuple[Tensor, RenderOutput, GaussianFrame]:
+        """Splat (9 feature channels for the full model, over ``FeatureDecoder.background``), then decode."""
+        frame = self.frame(camera.time, camera)
+        if background is not None and self.config.color == "full":
+            background = self.fields.background(background)
+        out = rasterize(
+            frame,
+            camera,
+            background=background,
+            antialiased=self.config.antialiased,
+            return_stats=return_stats,
+            backend=backend,
+        )
+        return self.decode(out.image, camera), out, frame
+
+    # -- training ---------------------------------------------------------------------------------------
+    def select_views(
+        self, step: int, views: list[View], batch_size: int, generator: torch.Generator
+    ) -> list[int]:
+        """One random timestamp and ``views_per_step`` distinct cameras of it (STG ``batch = 2``)."""
+        by_time: dict[float, list[int]] = {}
+        for i, v in enumerate(views):
+            by_time.setdefault(v.camera.time, []).append(i)
+        times = sorted(by_time)
+        members = by_time[times[int(torch.randint(len(times), (1,), generator=generator))]]
+        k = min(self.config.views_per_step, len(members))
+        order = torch.randperm(len(members), generator=generator)[:k]
+        return [members[i] for i in order.tolist()]
+
+    def param_groups(self) -> list[ParamGroup]:
+        c, sc, s = self.config, self.spatial_lr_scale, self.splats
+        colour = {
+            "full": [("features", c.features_lr), ("features_t", c.features_t_lr)],
+            "sh": [("sh0", c.features_lr), ("shN", c.shN_lr)],
+            "lite": [("rgb", c.features_lr)],
+        }[c.color]
+        constant = [
+            *colour,
+            ("motion", c.motion_lr * sc),
+            ("opacities", c.opacities_lr),
+            ("scales", c.scales_lr),
+            ("quats", c.quats_lr),
+            ("omega", c.omega_lr),
+            ("trbf_center", c.trbf_center_lr),
+            ("trbf_scale", c.trbf_scale_lr),
+        ]
+        groups = [
+            ParamGroup(
+                "means",
+                [s["means"]],
+                c.means_lr * sc,
+                lr_final=c.means_lr_final * sc,
+                max_steps=c.means_lr_max_steps,
+                optimizer=c.optimizer,
+            )
+        ]
+        groups += [ParamGroup(k, [s[k]], lr, optimizer=c.optimizer) for k, lr in constant]
+        if self.config.color == "full":
+            groups.append(
+                ParamGroup("decoder", list(self.fields.parameters()), c.decoder_lr, optimizer=c.optimizer)
+            )
+        return groups
+
+    def strategy(self) -> Strategy:
+        return self.config.strategy
+
+
+# -- segments ---------------------------------------------------------------------------------------------
+def segment_scene(scene: Scene, start: float, stop: float) -> Scene:
+    """The views of ``scene`` with ``start <= time < stop``, times mapped to ``(t - start) / (stop - start)``;
+    points with ``times`` are kept only inside the window (renormalised the same way)."""
+    if not stop > start:
+        raise ValueError(f"segment needs stop > start, got [{start}, {stop})")
+
+    def local(views: list[View]) -> list[View]:
+        return [
+            replace(v, camera=v.camera.at_time((v.camera.time - start) / (stop - start)), cache=None)
+            for v in views
+            if start - TIME_EPS <= v.camera.time < stop - TIME_EPS
+        ]
+
+    train = local(scene.train)
+    if not train:
+        raise ValueError(f"{scene.name}: no training view in the time window [{start}, {stop})")
+    points = scene.points
+    if points is not None and points.times is not None:
+        keep = (points.times >= start - TIME_EPS) & (points.times < stop - TIME_EPS)
+        points = PointCloud(
+            points.xyz[keep],
+            points.rgb[keep],
+            f"{points.source}, [{start:.3f}, {stop:.3f})",
+            (points.times[keep] - start) / (stop - start),
+        )
+    frames = len({v.camera.time for v in train})
+    return replace(
+        scene,
+        name=f"{scene.name}[{start:.3f},{stop:.3f})",
+        train=train,
+        test=local(scene.test),
+        num_frames=frames,
+        points=points,
+        meta={**scene.meta, "segment": [start, stop]},
+    )
+
+
+class STGSegments(nn.Module):
+    """Segment models answering any global time: ``frame(t)`` picks the segment holding ``t`` and queries it
+    at local time ``(t - start) / (stop - start)``; ``decode`` and ``render`` pick it by ``camera.time``."""
+
+    def __init__(self, models: list[STGExpert], bounds: list[tuple[float, float]]) -> None:
+        super().__init__()
+        if len(models) != len(bounds) or not models:
+            raise ValueError(
+                f"STGSegments needs one (start, stop) per model, got {len(models)} and {len(bounds)}"
+            )
+        self.models = nn.ModuleList(models)
+        self.bounds = list(bounds)
+
+    def locate(self, t: float) -> tuple[STGExpert, float]:
+        """The segment model holding global time ``t`` and the local time there."""
+        k = segment_index(t, [b[0] for b in self.bounds])
+        start, stop = self.bounds[k]
+        return self.models[k], (t - start) / (stop - start)
+
+    @property
+    def num_gaussians(self) -> int:
+        return sum(m.num_gaussians for m in self.models)
+
+    def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
+        model, local = self.locate(t)
+        return model.frame(local, camera)
+
+    def decode(self, features: Tensor, camera: Camera) -> Tensor:
+        return self.locate(camera.time)[0].decode(features, camera)
+
+    def render(
+        self, camera: Camera, background: Tensor | None, backend: str = "auto", return_stats: bool = False
+    ) -> tuple[Tensor, RenderOutput, GaussianFrame]:
+        model, local = self.locate(camera.time)
+        return model.render(camera.at_time(local), background, backend, return_stats)
+
+
+def train_segments(
+    scene: Scene, config: STGConfig, out_dir: str | Path | None = None, progress: bool = False
+) -> tuple[STGSegments, list[dict]]:
+    """Train one ``STGExpert`` per ``config.segment_frames`` window with the shared training loop.
+
+    Returns the wrapper and each segment's ``moegs.train.loop.train`` result (``out_dir/segment_<k>``
+    holds each run, so an interrupted call resumes).
+    """
+    from moegs.train.loop import train
+
+    bounds = segment_bounds(sorted({v.camera.time for v in scene.train}), config.segment_frames)
+    models, results = [], []
+    for k, (start, stop) in enumerate(bounds):
+        part = segment_scene(scene, start, stop)
+        model = STGExpert.from_scene(part, config)
+        run_dir = Path(out_dir) / f"segment_{k}" if out_dir is not None else None
+        results.append(train(model, part, out_dir=run_dir, progress=progress))
+        models.append(model)
+    return STGSegments(models, bounds).eval(), results

@@ -1,0 +1,191 @@
+"""E-D3DGS: embedding interpolation, schedules, smoothness, sampling, and a real-data run."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import pytest
+import torch
+from helpers.scenes import tiny_scene
+from helpers.training import trained_expert
+from torch.nn import functional as F
+
+from moegs.experts.ed3dgs import (
+    ED3DGSConfig,
+    ED3DGSExpert,
+    buggy_temporal_tv,
+    embedding_smoothness,
+    knn,
+    knots_at,
+    ramp,
+    sample_rows,
+    temporal_embedding,
+)
+from moegs.train.config import TrainConfig
+from moegs.train.optim import Optimizers
+
+
+def test_sample_rows_linear_and_reflected():
+    table = torch.tensor([[0.0], [10.0], [20.0]])
+    u = torch.tensor([0.0, 0.25, 0.5, 1.0, -0.25, 1.25])
+    assert sample_rows(table, u)[:, 0].tolist() == pytest.approx([0.0, 5.0, 10.0, 20.0, 5.0, 15.0])
+
+
+def test_temporal_embedding_resizes_before_sampling():
+    table = torch.tensor([0.0, 4.0, 0.0, 4.0, 0.0])[:, None]  # 5 rows
+    assert temporal_embedding(table, 0.25, 5).item() == pytest.approx(4.0)  # knot 1
+    assert temporal_embedding(table, 0.25, 3).item() == pytest.approx(0.0)  # knots = rows 0, 2, 4: all zero
+    assert temporal_embedding(table, 0.125, 5).item() == pytest.approx(2.0)  # half way to knot 1
+
+
+def test_temporal_embedding_matches_the_original_interpolate_grid_sample():
+    g = torch.Generator().manual_seed(1)
+    table = torch.randn(150, 16, generator=g)
+    for t, knots in [(0.0, 30), (0.37, 30), (0.91, 97), (1.0, 150), (1.08, 40), (-0.05, 40)]:
+        resized = F.interpolate(table[None, None], size=(knots, 16), mode="bilinear", align_corners=True)
+        grid = torch.stack([torch.arange(16) / 15, torch.full((16,), t)], dim=-1)[None, None]
+        ref = F.grid_sample(
+            resized, (grid - 0.5) * 2, mode="bilinear", padding_mode="reflection", align_corners=True
+        )[0, 0, 0]
+        assert torch.allclose(temporal_embedding(table, t, knots), ref, atol=2e-4), (t, knots)
+
+
+def test_knot_schedule_and_ramps():
+    assert [knots_at(s, 30, 150, 10_000) for s in (0, 5000, 10_000, 20_000)] == [30, 90, 150, 150]
+    assert knots_at(123, 30, 150, None) == 150
+    assert [ramp(s, 0, 1000) for s in (-5, 0, 250, 1000, 4000)] == [0.0, 0.0, 0.25, 1.0, 1.0]
+    assert ramp(5500, 5000, 1000) == 0.5
+
+
+def test_embedding_smoothness_by_hand():
+    z = torch.tensor([[0.0, 0.0], [3.0, 4.0]])
+    value = embedding_smoothness(z, torch.tensor([[1], [0]]), torch.tensor([[1.0], [0.25]]))
+    assert value.item() == pytest.approx((5.0 + 2.5) / 2)
+
+
+def test_knn_on_a_line():
+    pts = torch.tensor([[0.0, 0, 0], [1.0, 0, 0], [3.0, 0, 0], [7.0, 0, 0]])
+    d2, idx = knn(pts, 2)
+    assert idx.tolist() == [[1, 2], [0, 2], [1, 0], [2, 1]]
+    assert d2.tolist() == [[1.0, 9.0], [1.0, 4.0], [4.0, 9.0], [16.0, 36.0]]
+
+
+def test_buggy_temporal_tv_by_hand():
+    w = torch.tensor([[0.0], [1.0], [3.0]])  # rows minus the LAST row, as in E-D3DGS
+    first = torch.tensor([[1.0 - 3.0], [3.0 - 3.0]])
+    second = first[1:] - first[1]
+    assert buggy_temporal_tv(w).item() == pytest.approx(second.square().mean().item())
+
+
+def monocular(scene):
+    """One camera per frame (cycling), as D-NeRF."""
+    cams = len({v.camera.camera_id for v in scene.train})
+    return replace(
+        scene, train=[v for v in scene.train if v.camera.camera_id == v.camera.frame % cams], multiview=False
+    )
+
+
+def _expert(**overrides) -> tuple[ED3DGSExpert, object]:
+    scene = tiny_scene()
+    config = ED3DGSConfig.quick()
+    for k, v in overrides.items():
+        setattr(config, k, v)
+    return ED3DGSExpert.from_scene(scene, config), scene
+
+
+def test_ramp_in_and_delayed_attributes():
+    expert, scene = _expert()
+    c = expert.config
+    assert expert.coefficients() == dict.fromkeys(("means", "quats", "scales", "opacities", "sh"), 0.0)
+    expert.on_step(c.anneal_steps // 2)
+    coef = expert.coefficients()
+    assert coef["means"] == coef["quats"] == 0.5 and coef["scales"] == coef["opacities"] == coef["sh"] == 0.0
+    expert.on_step(c.deform_from + c.anneal_steps)
+    assert set(expert.coefficients().values()) == {1.0}
+
+
+def test_untrained_embeddings_and_zero_ramp_give_the_canonical_frame():
+    expert, scene = _expert()
+    frame = expert.frame(0.3, scene.train[0].camera)  # step 0: every coefficient is 0
+    assert torch.equal(frame.means, expert.splats["means"])
+    expert.on_step(10_000)
+    assert not torch.allclose(expert.frame(0.3, scene.train[0].camera).means, expert.splats["means"])
+
+
+def test_knots_follow_the_schedule_in_training_and_max_at_test():
+    expert, _ = _expert()
+    c = expert.config
+    half = c.coarse_to_fine_until // 2
+    expert.on_step(half)
+    fine = int(c.min_embeddings + (c.max_embeddings - c.min_embeddings) * half / c.coarse_to_fine_until)
+    assert expert.knots() == (c.min_embeddings, fine)
+    expert.on_step(c.coarse_to_fine_until)
+    assert expert.knots() == (c.min_embeddings, c.max_embeddings)
+    expert.eval()
+    assert expert.knots() == (c.min_embeddings, c.max_embeddings)
+
+
+def test_camera_time_offsets_train_per_camera_and_average_at_test():
+    expert, scene = _expert()
+    offsets = expert.fields.offsets
+    assert offsets.shape[0] == 1 + max(v.camera.camera_id for v in scene.train + scene.test)
+    with torch.no_grad():
+        offsets[0], offsets[2] = 0.1, 0.3
+    assert float(expert.fields.time_offset(scene.train[2].camera, training=True).detach()) == pytest.approx(
+        0.3
+    )
+    assert float(expert.fields.time_offset(None, training=False).detach()) == pytest.approx(0.2)
+    mono = ED3DGSExpert.from_scene(monocular(tiny_scene()), ED3DGSConfig.quick())
+    assert mono.fields.offsets is None and mono.views is None
+
+
+def test_every_parameter_in_exactly_one_group():
+    expert, _ = _expert()
+    opts = Optimizers(expert.param_groups())
+    assert set(opts.for_splats(expert.splats)) == set(expert.splats.keys())
+    grouped = [p for g in expert.param_groups() for p in g.params]
+    assert len(grouped) == len({id(p) for p in grouped}) == len(list(expert.parameters()))
+
+
+def test_sampler_keeps_consecutive_cameras_apart_and_reuses_ssim_frames():
+    expert, scene = _expert(random_until=0, multiview_ssim_iters=5)
+    table, g = expert.views, torch.Generator().manual_seed(0)
+    cams = []
+    for step in range(1, 60):
+        (i,) = expert.select_views(step, scene.train, 1, g)
+        cams.append(scene.train[i].camera)
+    for a, b in zip(cams[:-1], cams[1:], strict=True):
+        assert float((a.center - b.center).norm()) >= table.min_distance - 1e-6
+    # step % 50 in 0..4 keeps the frame for the next step: steps 50..55 share one frame
+    assert len({c.frame for c in cams[49:55]}) == 1
+
+
+def test_error_guided_frames_prefer_high_error():
+    expert, scene = _expert(random_until=0, multiview_ssim_iters=0)
+    with torch.no_grad():
+        expert.views.errors.fill_(0.1)
+        expert.views.errors[:, 2] = 0.9
+    g = torch.Generator().manual_seed(0)
+    frames = [scene.train[expert.select_views(s, scene.train, 1, g)[0]].camera.frame for s in range(2, 80, 2)]
+    assert all(f == 2 for f in frames)  # min-max normalised: the lowest-error frames get probability 0
+
+
+def test_trains_on_tiny_scene_and_beats_its_start():
+    scene = tiny_scene()
+    config = ED3DGSConfig.quick()
+    config.train = TrainConfig(iterations=30, lambda_dssim=0.0)
+    expert = ED3DGSExpert.from_scene(scene, config)
+    from moegs.train.loop import train
+
+    result = train(expert, scene, progress=False)
+    assert math.isfinite(result["final_loss"]) and result["test"]["psnr"] > 15.0
+    assert expert.splats["embedding"].abs().sum() > 0  # the per-Gaussian embeddings learned
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+def test_mutant_quick_beats_static(mutant_root):
+    static = trained_expert("static", "dnerf:mutant").metrics["test"]["psnr"]
+    result = trained_expert("ed3dgs", "dnerf:mutant").metrics
+    assert result["completed"] and result["test"]["psnr"] > static + 1.0, (result["test"]["psnr"], static)

@@ -1,0 +1,207 @@
+"""Ex4DGS: keyframe interpolation, temporal opacity, conversion, progressive schedule, back-tracking."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from helpers.scenes import tiny_scene
+from helpers.training import trained_expert
+
+from moegs.experts.ex4dgs import (
+    Ex4DGSConfig,
+    Ex4DGSExpert,
+    Ex4DGSStrategy,
+    catmull_rom,
+    extrapolate_keyframes,
+    initial_keyframes,
+    keyframe_count,
+    keyframe_position,
+    slerp,
+    temporal_opacity,
+)
+from moegs.render import rasterize
+from moegs.train.config import TrainConfig
+from moegs.train.optim import Optimizers
+
+
+def test_keyframe_position_and_count():
+    assert keyframe_position(3, 12, 10) == (1, 0.5)  # u = 15
+    assert keyframe_position(0, 12, 10) == (1, 0.2)
+    assert keyframe_count(300, 12, 10) == 36  # N3V: ceil(325 / 10) + 3
+
+
+def test_catmull_rom_hermite_by_hand():
+    xs = torch.tensor([0.0, 1.0, 4.0, 9.0, 16.0])
+    points = torch.stack([xs, torch.zeros(5), -xs], dim=-1)[None]  # [1, 5, 3]
+    # k = 1: tangents (4 - 0) / 2 = 2 and (9 - 1) / 2 = 4; h = (0.5, 0.125, 0.5, -0.125) at δ = 0.5
+    assert catmull_rom(points, 1, 0.5)[0].tolist() == pytest.approx([2.25, 0.0, -2.25])
+    assert catmull_rom(points, 1, 0.0)[0, 0].item() == pytest.approx(1.0)
+    assert catmull_rom(points, 1, 1.0)[0, 0].item() == pytest.approx(4.0)
+    with pytest.raises(ValueError, match="outside the keyframe range"):
+        catmull_rom(points, 0, 0.5)
+
+
+def test_slerp_halfway_and_no_shortest_arc_flip():
+    q0 = torch.tensor([[1.0, 0.0, 0.0, 0.0]])
+    q1 = torch.tensor([[math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)]])  # 90 degrees about z
+    half = slerp(q0, q1, 0.5)
+    assert torch.allclose(
+        half, torch.tensor([[math.cos(math.pi / 8), 0, 0, math.sin(math.pi / 8)]]), atol=1e-5
+    )
+    assert torch.allclose(slerp(q0, q1, 0.0), q0) and torch.allclose(slerp(q0, q1, 1.0), q1, atol=1e-6)
+    long_way = slerp(q0, -q1, 0.5)  # the same rotation as q1, but no sign flip: the long arc
+    assert not torch.allclose(long_way.abs(), half.abs(), atol=1e-3)
+    assert torch.allclose(long_way.norm(dim=-1), torch.ones(1))
+
+
+def test_two_sided_temporal_opacity_literal():
+    centers = torch.tensor([[2.0, 4.0]]).repeat(3, 1)
+    widths = torch.tensor([[0.0, math.log(2.0)]]).repeat(3, 1)
+    var_min = 0.3
+    out = temporal_opacity(
+        centers, widths, torch.tensor([3.0, 5.0, 1.0])[:, None].squeeze(1)[0].item(), var_min
+    )
+    assert torch.all(out == 1.0)  # between the centres
+    right = temporal_opacity(centers[:1], widths[:1], 5.0, var_min)
+    assert right.item() == pytest.approx(
+        math.exp(-1.0 / (2.0 + var_min / 2.36) ** 2)
+    )  # m = 5 - 4, right width
+    left = temporal_opacity(centers[:1], widths[:1], 1.0, var_min)
+    assert left.item() == pytest.approx(math.exp(-9.0 / (1.0 + var_min / 2.36) ** 2))  # m = min(-1, -3) = -3
+
+
+def test_initial_keyframes_resize_two_points_like_the_original():
+    x, d = torch.zeros(1, 3), torch.ones(1, 3)
+    keys = initial_keyframes(x, d, interval=10, duration=10, count=4)  # ends -1 and 2, align_corners=False
+    assert keys[0, :, 0].tolist() == pytest.approx([-1.0, -0.25, 1.25, 2.0])
+
+
+def test_extrapolate_keyframes_continues_the_mean_step():
+    keys = torch.tensor([0.0, 1.0, 2.0, 3.0, 99.0, 99.0])[None, :, None]
+    assert extrapolate_keyframes(keys, valid=4, average=2)[0, :, 0].tolist() == [0, 1, 2, 3, 4, 5]
+
+
+def _expert(num_frames=3, **overrides) -> tuple[Ex4DGSExpert, object]:
+    scene = tiny_scene(num_frames=num_frames)
+    config = Ex4DGSConfig.quick()
+    config.max_init_points = 80
+    for k, v in overrides.items():
+        setattr(config, k, v)
+    return Ex4DGSExpert.from_scene(scene, config), scene
+
+
+def test_static_drift_over_the_current_duration():
+    expert, scene = _expert(num_frames=5, start_duration=2)
+    with torch.no_grad():
+        expert.splats["drift"].fill_(1.0)
+    frame_time = scene.train[-1].camera.time  # frame 4
+    means = expert.frame(frame_time).means
+    assert torch.allclose(means, expert.splats["means"] + 4.0 / 2.0)
+
+
+def test_conversion_uses_drift_over_squared_distance_and_best_frame():
+    expert, scene = _expert()
+    s = expert.splats
+    cam = scene.train[0].camera
+    with torch.no_grad():
+        s["drift"][:5] = 0.5
+        s["err_min_time"][:5] = 1.0
+    converted = expert.convert(cam)
+    assert converted >= 1 and bool(s["dynamic"][:5].any()) and int(s["dynamic"].sum()) == converted
+    i = int(s["dynamic"].nonzero()[0])
+    c = expert.config
+    duration = max(float(expert.duration), c.interval)  # the original's max(max_dur, interval)
+    assert s["widths"][i].tolist() == pytest.approx([1.0 + c.time_pad, duration - 1.0 + c.time_pad])
+    lo, hi = (c.shift + 1) / c.interval, (c.shift + duration - 1) / c.interval
+    expected = [
+        min(max((0.5 + c.shift) / c.interval, lo), hi),
+        min(max(((duration + 1) / 2 + c.shift) / c.interval, lo), hi),
+    ]
+    assert s["centers"][i].tolist() == pytest.approx(expected)
+    assert torch.allclose(s["motion_quats"][i], s["quats"][i].expand_as(s["motion_quats"][i]))
+    frame = expert.frame(scene.train[-1].camera.time)
+    assert torch.isfinite(frame.means).all() and not torch.allclose(frame.means[i], s["means"][i])
+
+
+def test_progressive_schedule_grows_and_converts_with_newest_frames():
+    expert, scene = _expert(num_frames=30, start_duration=10, grow_from=0, grow_every=5, interval=10)
+    g = torch.Generator().manual_seed(0)
+    for step in range(1, 5):
+        (i,) = expert.select_views(step, scene.train, 1, g)
+        assert expert.frame_index(scene.train[i].camera.time) < 10
+    (i,) = expert.select_views(5, scene.train, 1, g)  # growth to 20 frames, view from frames 10..19
+    assert float(expert.duration) == 20 and 10 <= round(expert.frame_index(scene.train[i].camera.time)) < 20
+
+
+def test_backtracking_of_one_gaussian_is_its_mean_pixel_error():
+    expert, scene = _expert()
+    s = expert.splats
+    keep = torch.zeros(len(s["means"]), dtype=torch.bool)
+    keep[0] = True
+    with torch.no_grad():
+        s["opacities"].data[~keep] = -30.0  # only Gaussian 0 is visible
+        s["means"][0] = 0.0
+        s["scales"][0] = math.log(0.3)
+        s["opacities"][0] = 0.0
+    view = scene.train[0]
+    expert.train()
+    rgb, out, _ = expert.render(view.camera, scene.background, return_stats=True)
+    target = view.image()
+    expert.observe(1, view, rgb, target, out)
+    (rgb - target).abs().mean().backward()
+    covered = out.alpha > 1e-6
+    expected = (rgb - target).abs().mean(-1)[covered].mean()
+    assert s["err_count"][0] == 1 and s["err_sum"][0].item() == pytest.approx(expected.item(), rel=1e-3)
+    assert s["err_min_time"][0] == 0 and s["weight_max"][0] > 0
+
+
+def test_dynamic_split_moves_every_keyframe_and_resets_widths():
+    expert, scene = _expert()
+    s = expert.splats
+    with torch.no_grad():
+        s["dynamic"][0] = True
+        s["widths"][0] = torch.tensor([5.0, 6.0])
+        s["centers"][0] = torch.tensor([1.0, 3.0])
+    strategy = Ex4DGSStrategy(interval=10)
+    before = s["motion_means"][0].clone()
+    mask = torch.zeros(len(s["means"]), dtype=torch.bool)
+    mask[0] = True
+    strategy._split(s, {}, mask)
+    kids = slice(len(mask) - 1, None)
+    assert s["means"].shape[0] == len(mask) + 1 and bool(s["dynamic"][kids].all())
+    offsets = s["motion_means"][kids] - before  # identity keyframe rotations: one offset for all keyframes
+    assert torch.allclose(offsets, offsets[:, :1].expand_as(offsets), atol=1e-6)
+    assert torch.all(s["widths"][kids] == 2.0)
+
+
+def test_groups_antialiased_render_and_radam():
+    expert, scene = _expert()
+    groups = expert.param_groups()
+    assert {g.optimizer for g in groups} == {"radam"}
+    trainable = {k for k, p in expert.splats.items() if p.requires_grad}
+    assert set(Optimizers(groups).for_splats(expert.splats)) == trainable
+    expert.eval()
+    cam = scene.test[0].camera
+    rgb, _, frame = expert.render(cam, scene.background)
+    ref = rasterize(frame, cam, background=scene.background, antialiased=True).image
+    assert torch.allclose(rgb, ref)
+
+
+def test_trains_on_tiny_scene():
+    from moegs.train.loop import train
+
+    expert, scene = _expert(num_frames=3)
+    expert.config.train = TrainConfig(iterations=30, lambda_dssim=0.2)
+    result = train(expert, scene, progress=False)
+    assert result["completed"] and math.isfinite(result["final_loss"]) and result["test"]["psnr"] > 14.0
+    assert float(expert.splats["err_count"].max()) > 0
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+def test_mutant_quick_beats_static(mutant_root):
+    static = trained_expert("static", "dnerf:mutant").metrics["test"]["psnr"]
+    result = trained_expert("ex4dgs", "dnerf:mutant").metrics
+    assert result["completed"] and result["test"]["psnr"] > static + 1.0, (result["test"]["psnr"], static)

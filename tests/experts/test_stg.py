@@ -1,0 +1,198 @@
+"""STG: polynomial motion, rotation, temporal opacity, decoder, segments, sampling, densification."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import pytest
+import torch
+from helpers.scenes import tiny_scene
+from helpers.training import trained_expert
+
+from moegs.data.scene import PointCloud
+from moegs.experts.stg import (
+    STGConfig,
+    STGExpert,
+    STGSegments,
+    STGStrategy,
+    linear_rotation,
+    polynomial_motion,
+    segment_bounds,
+    segment_index,
+    segment_scene,
+    temporal_opacity,
+    train_segments,
+)
+from moegs.experts.stg_decoder import FeatureDecoder
+from moegs.train.config import TrainConfig
+from moegs.train.optim import Optimizers
+
+
+def monocular(scene):
+    """One camera per frame (cycling), as D-NeRF."""
+    cams = len({v.camera.camera_id for v in scene.train})
+    return replace(
+        scene, train=[v for v in scene.train if v.camera.camera_id == v.camera.frame % cams], multiview=False
+    )
+
+
+def with_times(scene):
+    """Points tagged with the normalised time of a random frame (an STG-style merged per-frame cloud)."""
+    g = torch.Generator().manual_seed(3)
+    frames = torch.randint(scene.num_frames, (len(scene.points),), generator=g).float()
+    times = frames / max(scene.num_frames - 1, 1)
+    return replace(scene, points=PointCloud(scene.points.xyz, scene.points.rgb, "tiny per-frame", times))
+
+
+def test_cubic_polynomial_motion_by_hand():
+    means = torch.tensor([[1.0, 2.0, 3.0]])
+    motion = torch.tensor([[1.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 3.0]])  # b1 x, b2 y, b3 z
+    out = polynomial_motion(means, motion, torch.tensor([[0.5]]))
+    assert out.tolist() == [[1.5, 2.0 + 2.0 * 0.25, 3.0 + 3.0 * 0.125]]
+
+
+def test_linear_rotation_velocity():
+    q = torch.tensor([[1.0, 0.0, 0.0, 0.0]])
+    omega = torch.tensor([[0.0, 0.0, 0.0, 2.0]])
+    out = linear_rotation(q, omega, torch.tensor([[0.5]]))
+    assert torch.allclose(out, torch.tensor([[1.0, 0.0, 0.0, 1.0]]) / math.sqrt(2))
+
+
+def test_temporal_rbf_opacity_divides_by_the_scale():
+    logits = torch.zeros(3)  # sigmoid = 0.5
+    dt = torch.tensor([0.0, 0.5, 1.0])
+    log_scale = torch.log(torch.tensor([1.0, 0.5, 2.0]))
+    expected = 0.5 * torch.exp(-torch.tensor([0.0, 1.0, 0.25]))
+    assert torch.allclose(temporal_opacity(logits, dt, log_scale), expected)
+
+
+def test_segment_lookup_and_bounds():
+    times = [j / 300 for j in range(300)]
+    bounds = segment_bounds(times, 150)
+    assert bounds == [(0.0, 0.5), (0.5, 1.0)]  # MoE-GS N3V: local t/150 and (t-150)/150
+    starts = [b[0] for b in bounds]
+    assert [segment_index(t, starts) for t in (0.0, 0.4967, 0.5, 0.99, 1.2, -0.1)] == [0, 0, 1, 1, 1, 0]
+    assert segment_bounds([0.0, 0.25, 0.5, 0.75], None) == [(0.0, 1.0)]
+    assert segment_bounds([0.0, 0.25, 0.5, 0.75], 3) == [(0.0, 0.75), (0.75, 1.0)]
+
+
+def test_decoder_is_bias_free_12_6_3_and_uses_rays():
+    dec = FeatureDecoder("sigmoid")
+    assert [tuple(p.shape) for p in dec.parameters()] == [(6, 12), (3, 6)]
+    cam = tiny_scene(num_frames=1, cameras=2).train[0].camera
+    feats = torch.zeros(cam.height, cam.width, 9)
+    feats[..., :3] = 0.3
+    with torch.no_grad():
+        dec.mlp2.weight.zero_()
+        assert torch.allclose(
+            dec(feats, cam), torch.sigmoid(torch.tensor(0.3)).expand(cam.height, cam.width, 3)
+        )
+        dec.mlp2.weight.fill_(0.1)
+        dec.mlp1.weight.fill_(0.0)
+        dec.mlp1.weight[0, 6:9] = 1.0  # hidden unit 0 = ReLU(camera centre x + y + z)
+        origins, _ = cam.rays()
+        h = torch.relu(origins.sum(-1, keepdim=True))
+        assert torch.allclose(dec(feats, cam), torch.sigmoid(0.3 + 0.1 * h).expand(-1, -1, 3), atol=1e-6)
+    clamp = FeatureDecoder("clamp")
+    with torch.no_grad():
+        clamp.mlp2.weight.zero_()
+    feats[..., :3] = 1.7
+    assert torch.all(clamp(feats, cam) == 1.0)
+
+
+@pytest.mark.parametrize("color", ["full", "sh", "lite"])
+def test_colour_models_frame_channels_and_groups(color):
+    scene = tiny_scene(num_frames=2)
+    expert = STGExpert.from_scene(scene, STGConfig(color=color, max_init_points=50))
+    cam = scene.train[0].camera
+    frame = expert.frame(cam.time, cam)
+    assert frame.num_channels == {"full": 9, "sh": 3, "lite": 3}[color]
+    rgb, out, _ = expert.render(cam, scene.background)
+    assert rgb.shape == (cam.height, cam.width, 3) and torch.isfinite(rgb).all()
+    opts = Optimizers(expert.param_groups())
+    assert set(opts.for_splats(expert.splats)) == set(expert.splats.keys())
+    assert len({id(p) for g in expert.param_groups() for p in g.params}) == len(list(expert.parameters()))
+
+
+def test_time_centre_learns_only_through_opacity():
+    scene = tiny_scene(num_frames=2)
+    expert = STGExpert.from_scene(scene, STGConfig(max_init_points=50))
+    with torch.no_grad():
+        expert.splats["motion"].normal_()
+        expert.splats["omega"].normal_()
+    frame = expert.frame(0.7)
+    (frame.means.sum() + frame.quats.sum() + frame.colors.sum()).backward()
+    assert expert.splats["trbf_center"].grad is None or expert.splats["trbf_center"].grad.abs().sum() == 0
+    frame = expert.frame(0.7)
+    frame.opacities.sum().backward()
+    assert expert.splats["trbf_center"].grad.abs().sum() > 0
+
+
+def test_birth_times_come_from_the_point_cloud_in_local_time():
+    scene = with_times(tiny_scene(num_frames=3))  # scene times 0, 0.5, 1 -> STG's j / D = 0, 1/3, 2/3
+    expert = STGExpert.from_scene(scene, STGConfig())
+    assert expert.window == (0.0, 1.5)
+    assert torch.allclose(expert.splats["trbf_center"].detach(), scene.points.times / 1.5)
+    with torch.no_grad():
+        expert.splats["trbf_center"].fill_(2 / 3)
+    assert torch.allclose(expert.frame(1.0).opacities, torch.sigmoid(expert.splats["opacities"]))  # Δt = 0
+
+
+def test_two_views_of_one_timestamp_per_step():
+    scene = tiny_scene(num_frames=3, cameras=4)
+    expert = STGExpert.from_scene(scene, STGConfig(max_init_points=50))
+    g = torch.Generator().manual_seed(0)
+    for step in range(1, 20):
+        picks = expert.select_views(step, scene.train, 1, g)
+        cams = [scene.train[i].camera for i in picks]
+        assert len(picks) == 2 and cams[0].time == cams[1].time and cams[0].camera_id != cams[1].camera_id
+    mono = monocular(tiny_scene(num_frames=3))
+    assert len(expert.select_views(1, mono.train, 1, g)) == 1
+
+
+def test_densification_randomises_new_time_centres_and_caps_events():
+    scene = tiny_scene(num_frames=2)
+    expert = STGExpert.from_scene(scene, STGConfig(max_init_points=40))
+    strategy = STGStrategy(densify_from=0, densify_every=1, max_densify_events=2, prune_until=100)
+    params = expert.splats
+    with torch.no_grad():
+        params["trbf_center"].fill_(0.5)
+    state = strategy.initialize_state(1.0)
+    n = params["means"].shape[0]
+    state.update(grad2d=torch.ones(n), count=torch.ones(n), max_radii=torch.zeros(n))
+    strategy._clone_and_split(params, {}, state)
+    centres = params["trbf_center"].detach()
+    assert centres.shape[0] > n and torch.all(centres[: n - state["last_refine"]["split"]] == 0.5)
+    assert not torch.all(centres == 0.5)
+    assert state["last_refine"]["clone"] + state["last_refine"]["split"] == n
+
+
+def test_segments_answer_global_time_with_local_models():
+    scene = with_times(tiny_scene(num_frames=4, cameras=2))
+    part = segment_scene(scene, 0.5, 1.0 + 1 / 3)
+    assert {round(v.camera.time, 6) for v in part.train} == {0.2, 0.6}
+    config = STGConfig.quick()
+    config.segment_frames = 2
+    config.max_init_points = 60
+    config.train = TrainConfig(iterations=3, lambda_dssim=0.2)
+    segments, results = train_segments(scene, config)
+    assert (
+        isinstance(segments, STGSegments)
+        and len(segments.models) == 2
+        and all(r["completed"] for r in results)
+    )
+    model, local = segments.locate(2 / 3)
+    assert model is segments.models[1] and local == pytest.approx(0.0)
+    cam = scene.train[-1].camera
+    rgb, _, _ = segments.render(cam, scene.background)
+    assert rgb.shape == (cam.height, cam.width, 3)
+    assert segments.num_gaussians == sum(m.num_gaussians for m in segments.models)
+
+
+@pytest.mark.slow
+@pytest.mark.realdata
+def test_mutant_quick_beats_static(mutant_root):
+    static = trained_expert("static", "dnerf:mutant").metrics["test"]["psnr"]
+    result = trained_expert("stg", "dnerf:mutant").metrics
+    assert result["completed"] and result["test"]["psnr"] > static + 1.0, (result["test"]["psnr"], static)
