@@ -81,6 +81,51 @@ class ExpertConfig:
         return presets[name]()
 
 
+@dataclass
+class SplatInputs:
+    """One expert's rasterizer inputs for one view (see ``Expert.splat_inputs``).
+
+    Attributes:
+        frame: the activated Gaussians at the view's time (``C`` channels after SH evaluation).
+        background: ``[C]`` in the frame's channels, or None (black).
+        antialiased: the 0.1-px dilation mode with opacity compensation (Ex4DGS).
+        decode: splatted ``[H, W, C]`` -> RGB ``[H, W, 3]`` for this view; None = identity.
+    """
+
+    frame: GaussianFrame
+    background: Tensor | None
+    antialiased: bool = False
+    decode: Callable[[Tensor], Tensor] | None = None
+
+    def decoded(self, image: Tensor) -> Tensor:
+        return image if self.decode is None else self.decode(image)
+
+
+def render_splat_inputs(
+    inputs: SplatInputs, camera: Camera, backend: str = "auto", return_stats: bool = False
+) -> tuple[Tensor, RenderOutput, GaussianFrame]:
+    """``(rgb [H, W, 3], RenderOutput, frame)``: rasterize ``inputs`` for ``camera`` and decode."""
+    from moegs.render import rasterize
+
+    out = rasterize(
+        inputs.frame,
+        camera,
+        background=inputs.background,
+        antialiased=inputs.antialiased,
+        return_stats=return_stats,
+        backend=backend,
+    )
+    return inputs.decoded(out.image), out, inputs.frame
+
+
+def check_keep(keep: Tensor, num_gaussians: int) -> None:
+    """``keep`` must be a bool mask over ``num_gaussians`` rows."""
+    if keep.dtype != torch.bool or keep.shape != (num_gaussians,):
+        raise ValueError(
+            f"keep must be a bool tensor of shape [{num_gaussians}], got {keep.dtype} {list(keep.shape)}"
+        )
+
+
 class Expert(nn.Module, metaclass=abc.ABCMeta):
     """Base class for experts. Subclasses set ``name`` and ``config_class`` and implement
     ``from_scene``, ``frame`` and ``param_groups``.
@@ -121,16 +166,33 @@ class Expert(nn.Module, metaclass=abc.ABCMeta):
         """Turn a splatted image ``[H, W, C]`` into RGB ``[H, W, 3]`` (identity except STG)."""
         return features
 
-    def render(self, camera: Camera, background: Tensor | None, backend: str = "auto",
-               return_stats: bool = False) -> tuple[Tensor, RenderOutput, GaussianFrame]:
-        """``(rgb [H, W, 3], RenderOutput, frame)`` at ``camera.time``, with gradients; used for training
-        and evaluation. Default: ``rasterize(frame(t))`` then ``decode``. Experts override it for their own
-        rasteriser mode or background handling (Ex4DGS antialiasing, STG feature backgrounds)."""
-        from moegs.render import rasterize
+    def splat_inputs(self, camera: Camera, background: Tensor | None) -> SplatInputs:
+        """What ``render`` rasterizes at ``camera.time`` (evaluation path): the frame, the background in
+        the frame's channels, the rasterizer mode and the decoder. MoE-GS splats routing weights with
+        exactly this geometry and renders several experts in one pass from it."""
+        return SplatInputs(self.frame(camera.time, camera), background)
 
-        frame = self.frame(camera.time, camera)
-        out = rasterize(frame, camera, background=background, return_stats=return_stats, backend=backend)
-        return self.decode(out.image, camera), out, frame
+    def render(
+        self, camera: Camera, background: Tensor | None, backend: str = "auto", return_stats: bool = False
+    ) -> tuple[Tensor, RenderOutput, GaussianFrame]:
+        """``(rgb [H, W, 3], RenderOutput, frame)`` at ``camera.time``, with gradients; used for training
+        and evaluation. Default: ``rasterize(splat_inputs)`` then decode. Experts override
+        ``splat_inputs`` for their rasterizer mode or background (Ex4DGS antialiasing, STG features) and
+        ``render`` only for training-time extras."""
+        return render_splat_inputs(self.splat_inputs(camera, background), camera, backend, return_stats)
+
+    def frame_rows(self, t: float) -> Tensor | None:
+        """Indices ``[len(frame(t))]`` of the per-Gaussian rows (``0 .. num_gaussians - 1``) that make up
+        ``frame(t)``, in order; None when ``frame(t)`` holds every row in row order (the default).
+        Per-Gaussian data attached from outside (MoE-GS routing weights) is indexed with it."""
+        return None
+
+    def keep_gaussians(self, keep: Tensor) -> None:
+        """Drop the per-Gaussian rows where ``keep [num_gaussians]`` (bool) is False, in place (pruning a
+        trained, frozen expert; optimiser state is not kept)."""
+        check_keep(keep, self.num_gaussians)
+        for key, value in list(self.splats.items()):
+            self.splats[key] = nn.Parameter(value.detach()[keep].clone(), requires_grad=value.requires_grad)
 
     @abc.abstractmethod
     def param_groups(self) -> list[ParamGroup]:
@@ -152,8 +214,9 @@ class Expert(nn.Module, metaclass=abc.ABCMeta):
         """The densification strategy acting on ``splats`` (None: the set of Gaussians is fixed)."""
         return None
 
-    def select_views(self, step: int, views: list[View], batch_size: int,
-                     generator: torch.Generator) -> list[int] | None:
+    def select_views(
+        self, step: int, views: list[View], batch_size: int, generator: torch.Generator
+    ) -> list[int] | None:
         """Indices into ``views`` (the training views) to train on at ``step``, or None for the loop's
         shuffled sampler. ``generator`` is the sampler's own, checkpointed generator (E-D3DGS camera and
         error-guided sampling, STG same-time view pairs, Ex4DGS progressive frames)."""

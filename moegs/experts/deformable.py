@@ -47,9 +47,16 @@ class DeformableField(nn.Module):
         depth, width, skips: the trunk (:class:`~moegs.fields.SkipMLP`).
     """
 
-    def __init__(self, xyz_freqs: int = 10, time_freqs: int = 6, timenet_out: int | None = 30,
-                 timenet_width: int = 256, depth: int = 8, width: int = 256,
-                 skips: tuple[int, ...] = (4,)) -> None:
+    def __init__(
+        self,
+        xyz_freqs: int = 10,
+        time_freqs: int = 6,
+        timenet_out: int | None = 30,
+        timenet_width: int = 256,
+        depth: int = 8,
+        width: int = 256,
+        skips: tuple[int, ...] = (4,),
+    ) -> None:
         super().__init__()
         self.pe_xyz = PositionalEncoding(3, xyz_freqs)
         self.pe_time = PositionalEncoding(1, time_freqs)
@@ -60,8 +67,9 @@ class DeformableField(nn.Module):
 
     def forward(self, xyz: Tensor, t: Tensor) -> dict[str, Tensor]:
         if xyz.ndim != 2 or xyz.shape[1] != 3 or t.shape != (xyz.shape[0], 1):
-            raise ValueError(f"DeformableField expects xyz [N, 3] and t [N, 1], got {list(xyz.shape)}, "
-                             f"{list(t.shape)}")
+            raise ValueError(
+                f"DeformableField expects xyz [N, 3] and t [N, 1], got {list(xyz.shape)}, {list(t.shape)}"
+            )
         t_emb = self.pe_time(t)
         if self.timenet is not None:
             t_emb = self.timenet(t_emb)
@@ -123,14 +131,23 @@ class DeformableConfig(StaticConfig):
 
     @classmethod
     def presets(cls) -> dict[str, Callable[[], DeformableConfig]]:
-        return {"paper": cls, "paper-dnerf": cls, "paper-hypernerf": cls.paper_hypernerf,
-                "paper-n3v": cls.paper_n3v, "quick": cls.quick}
+        return {
+            "paper": cls,
+            "paper-dnerf": cls,
+            "paper-hypernerf": cls.paper_hypernerf,
+            "paper-n3v": cls.paper_n3v,
+            "quick": cls.quick,
+        }
 
     @classmethod
     def paper_hypernerf(cls) -> DeformableConfig:
         """HyperNeRF / NeRF-DS: real data (PE(t) 10, no timenet, AST), 20k iterations (README)."""
-        return cls(time_freqs=10, timenet_out=None, time_noise=True,
-                   train=TrainConfig(iterations=20_000, lambda_dssim=0.2))
+        return cls(
+            time_freqs=10,
+            timenet_out=None,
+            time_noise=True,
+            train=TrainConfig(iterations=20_000, lambda_dssim=0.2),
+        )
 
     @classmethod
     def paper_n3v(cls) -> DeformableConfig:
@@ -159,11 +176,23 @@ class DeformableExpert(DeformingExpert):
     name = "deformable"
     config_class = DeformableConfig
 
-    def __init__(self, config: DeformableConfig, splats: nn.ParameterDict, spatial_lr_scale: float,
-                 time_interval: float) -> None:
+    def __init__(
+        self,
+        config: DeformableConfig,
+        splats: nn.ParameterDict,
+        spatial_lr_scale: float,
+        time_interval: float,
+    ) -> None:
         super().__init__(config, splats, spatial_lr_scale)
-        self.fields = DeformableField(config.xyz_freqs, config.time_freqs, config.timenet_out,
-                                      config.timenet_width, config.depth, config.width, config.skips)
+        self.fields = DeformableField(
+            config.xyz_freqs,
+            config.time_freqs,
+            config.timenet_out,
+            config.timenet_width,
+            config.depth,
+            config.width,
+            config.skips,
+        )
         self.time_interval = time_interval
 
     @classmethod
@@ -189,7 +218,8 @@ class DeformableExpert(DeformingExpert):
             return activate(self.splats, self.active_sh_degree)
         d = self.deltas(t)
         return activate(
-            self.splats, self.active_sh_degree,
+            self.splats,
+            self.active_sh_degree,
             means=self.splats["means"] + d["dx"],
             scales=torch.exp(self.splats["scales"]) + d["dscale"],
             quats=nn.functional.normalize(self.splats["quats"], dim=-1) + d["drot"],
@@ -197,10 +227,17 @@ class DeformableExpert(DeformingExpert):
 
     def param_groups(self) -> list[ParamGroup]:
         c = self.config
-        return [*super().param_groups(),
-                ParamGroup("deform", list(self.fields.parameters()), c.deform_lr * self.spatial_lr_scale,
-                           lr_final=c.deform_lr_final, lr_delay_mult=c.lr_delay_mult,
-                           max_steps=c.deform_lr_max_steps)]
+        return [
+            *super().param_groups(),
+            ParamGroup(
+                "deform",
+                list(self.fields.parameters()),
+                c.deform_lr * self.spatial_lr_scale,
+                lr_final=c.deform_lr_final,
+                lr_delay_mult=c.lr_delay_mult,
+                max_steps=c.deform_lr_max_steps,
+            ),
+        ]
 
 
 __all__ = ["DeformableConfig", "DeformableExpert", "DeformableField", "ast_scale"]

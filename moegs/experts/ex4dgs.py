@@ -33,7 +33,7 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene, View
-from moegs.experts.base import Expert, ExpertConfig, ParamGroup
+from moegs.experts.base import Expert, ExpertConfig, ParamGroup, SplatInputs
 from moegs.experts.canonical import QUICK_ITERATIONS
 from moegs.experts.gaussian_params import active_sh_degree, init_splats, sh_coeffs
 from moegs.experts.static import QUICK_RESOLUTION, scene_points, thin_points
@@ -443,22 +443,17 @@ class Ex4DGSExpert(Expert):
             sh=sh_coeffs(s, self.active_sh_degree),
         )
 
+    def splat_inputs(self, camera: Camera, background: Tensor | None) -> SplatInputs:
+        return SplatInputs(self.frame(camera.time, camera), background, antialiased=True)
+
     def render(
         self, camera: Camera, background: Tensor | None, backend: str = "auto", return_stats: bool = False
     ) -> tuple[Tensor, RenderOutput, GaussianFrame]:
         """Antialiased render (0.1 dilation). While training: random background and the back-tracking
         probe (3 extra channels, kept in the graph with zero weight; see ``observe``)."""
-        frame = self.frame(camera.time, camera)
         if not self.training:
-            out = rasterize(
-                frame,
-                camera,
-                background=background,
-                antialiased=True,
-                return_stats=return_stats,
-                backend=backend,
-            )
-            return out.image, out, frame
+            return super().render(camera, background, backend, return_stats)
+        frame = self.frame(camera.time, camera)
         if self.random_background:
             background = torch.rand(3, device=frame.device)
         probe = torch.zeros(len(frame), 3, device=frame.device, requires_grad=True)

@@ -40,9 +40,18 @@ from moegs.train.strategy import ADCStrategy, ops
 
 TIME_RESOLUTION = {
     # kplanes temporal resolution per scene (arguments/dnerf/*.py, arguments/hypernerf/*.py)
-    "dnerf:lego": 25, "dnerf:hellwarrior": 50, "dnerf:hook": 50, "dnerf:bouncingballs": 75,
-    "dnerf:mutant": 75, "dnerf:standup": 75, "dnerf:jumpingjacks": 100, "dnerf:trex": 100,
-    "hypernerf:3dprinter": 100, "hypernerf:broom": 100, "hypernerf:chicken": 80, "hypernerf:banana": 250,
+    "dnerf:lego": 25,
+    "dnerf:hellwarrior": 50,
+    "dnerf:hook": 50,
+    "dnerf:bouncingballs": 75,
+    "dnerf:mutant": 75,
+    "dnerf:standup": 75,
+    "dnerf:jumpingjacks": 100,
+    "dnerf:trex": 100,
+    "hypernerf:3dprinter": 100,
+    "hypernerf:broom": 100,
+    "hypernerf:chicken": 80,
+    "hypernerf:banana": 250,
 }
 DATASET_TIME_RESOLUTION = {"n3v": 150, "hypernerf": 150}  # dynerf/hypernerf default.py
 DEFAULT_TIME_RESOLUTION = 25  # ModelHiddenParams kplanes default (D-NeRF scenes without a config)
@@ -52,8 +61,14 @@ SH_COEFFS = num_sh_bases(3)  # the dSH head always predicts all 16 bands x RGB
 class FourDGSField(nn.Module):
     """``(xyz [N, 3], t [N, 1]) -> {"dx" [N, 3], "ds" [N, 3], "dr" [N, 4], ("do" [N, 1], "dsh" [N, 48])}``."""
 
-    def __init__(self, hexplane: HexPlane, width: int = 64, depth: int = 0, deform_opacity: bool = False,
-                 deform_sh: bool = False) -> None:
+    def __init__(
+        self,
+        hexplane: HexPlane,
+        width: int = 64,
+        depth: int = 0,
+        deform_opacity: bool = False,
+        deform_sh: bool = False,
+    ) -> None:
         super().__init__()
         self.grid = hexplane
         self.feature_out = mlp([hexplane.out_dim] + [width] * max(1, depth))
@@ -214,15 +229,27 @@ class FourDGSConfig(StaticConfig):
 
     @classmethod
     def presets(cls) -> dict[str, Callable[[], FourDGSConfig]]:
-        return {"paper": cls, "paper-dnerf": cls, "paper-n3v": cls.paper_n3v,
-                "paper-hypernerf": cls.paper_hypernerf, "quick": cls.quick}
+        return {
+            "paper": cls,
+            "paper-dnerf": cls,
+            "paper-n3v": cls.paper_n3v,
+            "paper-hypernerf": cls.paper_hypernerf,
+            "quick": cls.quick,
+        }
 
     @classmethod
     def paper_n3v(cls) -> FourDGSConfig:
         """``arguments/dynerf/default.py`` (batch 2; coffee_martini and flame_salmon_1 use 4)."""
         return cls(
-            max_init_points=None, feature_dim=16, time_resolution=150, width=128, deform_opacity=True,
-            deform_sh=True, deformation_lr_final=1.6e-5, grid_lr_final=1.6e-4, plane_tv_weight=2e-4,
+            max_init_points=None,
+            feature_dim=16,
+            time_resolution=150,
+            width=128,
+            deform_opacity=True,
+            deform_sh=True,
+            deformation_lr_final=1.6e-5,
+            grid_lr_final=1.6e-4,
+            plane_tv_weight=2e-4,
             time_smoothness_weight=1e-3,
             strategy=FourDGSStrategy(densify_until=10_000, reset_every=60_000, prune_every=100),
             train=TrainConfig(iterations=3000 + 14_000, batch_size=2, lambda_dssim=0.0),
@@ -232,8 +259,15 @@ class FourDGSConfig(StaticConfig):
     def paper_hypernerf(cls) -> FourDGSConfig:
         """``arguments/hypernerf/default.py`` (per-scene T in ``TIME_RESOLUTION``, else 150)."""
         return cls(
-            max_init_points=None, feature_dim=16, time_resolution=None, multires=(1, 2, 4), width=128,
-            depth=1, deformation_lr_final=1.6e-5, grid_lr_final=1.6e-4, plane_tv_weight=2e-4,
+            max_init_points=None,
+            feature_dim=16,
+            time_resolution=None,
+            multires=(1, 2, 4),
+            width=128,
+            depth=1,
+            deformation_lr_final=1.6e-5,
+            grid_lr_final=1.6e-4,
+            plane_tv_weight=2e-4,
             time_smoothness_weight=1e-3,
             strategy=FourDGSStrategy(densify_until=10_000, reset_every=300_000, prune_every=100),
             train=TrainConfig(iterations=3000 + 14_000, batch_size=2, lambda_dssim=0.0),
@@ -247,16 +281,26 @@ class FourDGSConfig(StaticConfig):
             resolution=32,  # quick: planes 64 (x1, x2) -> 32 (x1, x2) for 100 px images
             coarse_iterations=coarse,
             means_lr_max_steps=QUICK_ITERATIONS,  # quick: the decays span a stage of the short run
-            strategy=FourDGSStrategy(coarse_iterations=coarse, densify_from=100, densify_until=450,
-                                     densify_every=50, reset_every=300, prune_from=100, prune_every=400),
-            train=TrainConfig(iterations=QUICK_ITERATIONS, lambda_dssim=0.0,
-                              resolution_scale=QUICK_RESOLUTION),
+            strategy=FourDGSStrategy(
+                coarse_iterations=coarse,
+                densify_from=100,
+                densify_until=450,
+                densify_every=50,
+                reset_every=300,
+                prune_from=100,
+                prune_every=400,
+            ),
+            train=TrainConfig(
+                iterations=QUICK_ITERATIONS, lambda_dssim=0.0, resolution_scale=QUICK_RESOLUTION
+            ),
         )
 
     def __post_init__(self) -> None:
         if self.strategy.coarse_iterations != self.coarse_iterations:
-            raise ValueError(f"FourDGSConfig: strategy.coarse_iterations ({self.strategy.coarse_iterations}) "
-                             f"must equal coarse_iterations ({self.coarse_iterations})")
+            raise ValueError(
+                f"FourDGSConfig: strategy.coarse_iterations ({self.strategy.coarse_iterations}) "
+                f"must equal coarse_iterations ({self.coarse_iterations})"
+            )
 
 
 class FourDGSExpert(DeformingExpert):
@@ -265,20 +309,27 @@ class FourDGSExpert(DeformingExpert):
     name = "fourdgs"
     config_class = FourDGSConfig
 
-    def __init__(self, config: FourDGSConfig, splats: nn.ParameterDict, spatial_lr_scale: float,
-                 time_resolution: int) -> None:
+    def __init__(
+        self, config: FourDGSConfig, splats: nn.ParameterDict, spatial_lr_scale: float, time_resolution: int
+    ) -> None:
         super().__init__(config, splats, spatial_lr_scale)
         c = config
         means = splats["means"].detach()
-        hexplane = HexPlane((c.resolution,) * 3 + (time_resolution,), c.feature_dim, c.multires,
-                            aabb_min=means.min(0).values, aabb_max=means.max(0).values)
+        hexplane = HexPlane(
+            (c.resolution,) * 3 + (time_resolution,),
+            c.feature_dim,
+            c.multires,
+            aabb_min=means.min(0).values,
+            aabb_max=means.max(0).values,
+        )
         self.fields = FourDGSField(hexplane, c.width, c.depth, c.deform_opacity, c.deform_sh)
 
     @classmethod
     def from_scene(cls, scene: Scene, config: FourDGSConfig) -> FourDGSExpert:
         splats, scale = cls.canonical(scene, config)
         time_res = config.time_resolution or TIME_RESOLUTION.get(
-            scene.name, DATASET_TIME_RESOLUTION.get(scene.dataset, DEFAULT_TIME_RESOLUTION))
+            scene.name, DATASET_TIME_RESOLUTION.get(scene.dataset, DEFAULT_TIME_RESOLUTION)
+        )
         return cls(config, splats, scale, time_res)
 
     @property
@@ -311,9 +362,11 @@ class FourDGSExpert(DeformingExpert):
         c, grid = self.config, self.fields.grid
         if not self.deforming or c.time_smoothness_weight == 0:
             return torch.zeros((), device=self.splats["means"].device)
-        return (c.plane_tv_weight * grid.space_smoothness()
-                + c.time_smoothness_weight * grid.time_smoothness()
-                + c.l1_time_planes * grid.time_l1())
+        return (
+            c.plane_tv_weight * grid.space_smoothness()
+            + c.time_smoothness_weight * grid.time_smoothness()
+            + c.l1_time_planes * grid.time_l1()
+        )
 
     def param_groups(self) -> list[ParamGroup]:
         c, s = self.config, self.spatial_lr_scale
@@ -322,10 +375,20 @@ class FourDGSExpert(DeformingExpert):
         schedule = dict(lr_delay_mult=c.lr_delay_mult, max_steps=c.means_lr_max_steps)
         groups = [
             *super().param_groups(),
-            ParamGroup("deformation", self.fields.mlp_parameters(), c.deformation_lr * s,
-                       lr_final=c.deformation_lr_final * s, **schedule),
-            ParamGroup("grid", list(self.fields.grid.parameters()), c.grid_lr * s,
-                       lr_final=c.grid_lr_final * s, **schedule),
+            ParamGroup(
+                "deformation",
+                self.fields.mlp_parameters(),
+                c.deformation_lr * s,
+                lr_final=c.deformation_lr_final * s,
+                **schedule,
+            ),
+            ParamGroup(
+                "grid",
+                list(self.fields.grid.parameters()),
+                c.grid_lr * s,
+                lr_final=c.grid_lr_final * s,
+                **schedule,
+            ),
         ]
         return [replace(g, start_step=c.coarse_iterations) for g in groups]  # schedules restart when fine
 

@@ -45,8 +45,9 @@ class Grid4DNetwork(nn.Module):
     ``warp`` already includes the identity offset ``[1, 0, 0, 0, 0, 0, 0]``.
     """
 
-    def __init__(self, spatial_dim: int, temporal_dim: int, width: int = 256, depth: int = 0,
-                 directional: bool = True) -> None:
+    def __init__(
+        self, spatial_dim: int, temporal_dim: int, width: int = 256, depth: int = 0, directional: bool = True
+    ) -> None:
         super().__init__()
         self.directional = directional
         self.spatial_mlp = nn.Linear(spatial_dim, width)
@@ -80,14 +81,16 @@ class Grid4DField(nn.Module):
 
     def forward(self, xyz: Tensor, t: Tensor) -> dict[str, Tensor]:
         if xyz.ndim != 2 or xyz.shape[1] != 3 or t.shape != (xyz.shape[0], 1):
-            raise ValueError(f"Grid4DField expects xyz [N, 3] and t [N, 1], got {list(xyz.shape)}, "
-                             f"{list(t.shape)}")
+            raise ValueError(
+                f"Grid4DField expects xyz [N, 3] and t [N, 1], got {list(xyz.shape)}, {list(t.shape)}"
+            )
         xyz, xyzt = self.coordinates(xyz, t)
         return self.network(self.encoder.encode_spatial(xyz), self.encoder.encode_temporal(xyzt))
 
 
-def perturbation_loss(encode: Callable[[Tensor], Tensor], points: Tensor, perturb: Tensor,
-                      ratio: float) -> Tensor:
+def perturbation_loss(
+    encode: Callable[[Tensor], Tensor], points: Tensor, perturb: Tensor, ratio: float
+) -> Tensor:
     """``mean_i ||encode(p_i + d_i) - encode(p_i)||^2`` with ``d_i ~ U(-perturb, perturb)`` over a random
     subset of ``max(1, int(ratio N))`` rows of ``points [N, D]`` (all rows when ``ratio >= 1``)."""
     if ratio < 1.0:
@@ -175,16 +178,27 @@ class Grid4DConfig(StaticConfig):
 
     @classmethod
     def presets(cls) -> dict[str, Callable[[], Grid4DConfig]]:
-        return {"paper": cls, "paper-dnerf": cls, "paper-n3v": cls.paper_n3v,
-                "paper-hypernerf": cls.paper_hypernerf, "quick": cls.quick}
+        return {
+            "paper": cls,
+            "paper-dnerf": cls,
+            "paper-n3v": cls.paper_n3v,
+            "paper-hypernerf": cls.paper_hypernerf,
+            "quick": cls.quick,
+        }
 
     @classmethod
     def paper_n3v(cls) -> Grid4DConfig:
         """``arguments/neu3d/*.py`` (most scenes; coffee/salmon use [64, 64, 128], no reg, no D-SSIM)."""
         return cls(
-            bound=30.0, temporal_base=(16, 16, 16), temporal_desired=(512, 512, 128), network_lr_scale=1.0,
-            spatial_perturb=(5e-3,) * 3, temporal_perturb=(5e-3, 5e-3, 5e-3, 0.0),
-            spatial_downsample_ratio=1.0, temporal_downsample_ratio=1.0, reg_after_densify=True,
+            bound=30.0,
+            temporal_base=(16, 16, 16),
+            temporal_desired=(512, 512, 128),
+            network_lr_scale=1.0,
+            spatial_perturb=(5e-3,) * 3,
+            temporal_perturb=(5e-3, 5e-3, 5e-3, 0.0),
+            spatial_downsample_ratio=1.0,
+            temporal_downsample_ratio=1.0,
+            reg_after_densify=True,
             strategy=ADCStrategy(densify_every=400, reset_every=6000, prune_world_scale=float("inf")),
             train=TrainConfig(iterations=20_000, lambda_dssim=0.2),
         )
@@ -193,11 +207,20 @@ class Grid4DConfig(StaticConfig):
     def paper_hypernerf(cls) -> Grid4DConfig:
         """``arguments/hypernerf/vrig_3dprinter.py`` (HyperNeRF configs differ per scene; see spec §3.4)."""
         return cls(
-            bound=1.0, spatial_desired=256, temporal_base=(16, 16, 8), temporal_desired=(512, 512, 32),
+            bound=1.0,
+            spatial_desired=256,
+            temporal_base=(16, 16, 8),
+            temporal_desired=(512, 512, 32),
             depth=1,
-            network_lr_scale=1.0, lambda_spatial=1.0, lambda_temporal=1.0, spatial_downsample_ratio=1.0,
-            temporal_downsample_ratio=1.0, temporal_perturb=(1e-2, 1e-2, 1e-2, 0.0), warm_up=1000,
-            deform_lr_max_steps=40_000, train=TrainConfig(iterations=40_000, lambda_dssim=0.2),
+            network_lr_scale=1.0,
+            lambda_spatial=1.0,
+            lambda_temporal=1.0,
+            spatial_downsample_ratio=1.0,
+            temporal_downsample_ratio=1.0,
+            temporal_perturb=(1e-2, 1e-2, 1e-2, 0.0),
+            warm_up=1000,
+            deform_lr_max_steps=40_000,
+            train=TrainConfig(iterations=40_000, lambda_dssim=0.2),
         )
 
     @classmethod
@@ -206,9 +229,11 @@ class Grid4DConfig(StaticConfig):
         it = QUICK_ITERATIONS
         return cls(
             max_init_points=5000,  # quick: 100k random points -> 5k (CPU rasterizer cost)
-            spatial_levels=8, spatial_desired=512,  # quick: 16 levels to 2048 -> 8 to 512 (100 px images)
+            spatial_levels=8,
+            spatial_desired=512,  # quick: 16 levels to 2048 -> 8 to 512 (100 px images)
             spatial_log2_size=14,  # quick: tables 2^19 -> 2^14 (CPU memory and Adam cost)
-            temporal_levels=8, temporal_log2_size=14,  # quick: 32 -> 8 levels, same range (still dense)
+            temporal_levels=8,
+            temporal_log2_size=14,  # quick: 32 -> 8 levels, same range (still dense)
             warm_up=QUICK_STATIC_ITERATIONS,  # quick: 3000 of 50k -> 150 of 600
             means_lr_max_steps=it,  # quick: the canonical xyz decay spans the short run, as for `static`
             # deform_lr_max_steps stays 45k: a 600-step decay starves grid and MLP (measured 22.7 vs 28.2 dB)
@@ -227,9 +252,18 @@ class Grid4DExpert(DeformingExpert):
         super().__init__(config, splats, spatial_lr_scale)
         c = config
         encoder = DecomposedHashGrid4D(
-            c.bound, c.spatial_levels, c.spatial_level_dim, c.spatial_base, c.spatial_desired,
-            c.spatial_log2_size, c.temporal_levels, c.temporal_level_dim, c.temporal_base, c.temporal_desired,
-            c.temporal_log2_size)
+            c.bound,
+            c.spatial_levels,
+            c.spatial_level_dim,
+            c.spatial_base,
+            c.spatial_desired,
+            c.spatial_log2_size,
+            c.temporal_levels,
+            c.temporal_level_dim,
+            c.temporal_base,
+            c.temporal_desired,
+            c.temporal_log2_size,
+        )
         network = Grid4DNetwork(encoder.spatial_dim, encoder.temporal_dim, c.width, c.depth, c.directional)
         self.fields = Grid4DField(encoder, network, c.scale_xyz)
         self._last_time: float | None = None  # time of the last training frame(), for regularization()
@@ -249,7 +283,8 @@ class Grid4DExpert(DeformingExpert):
             self._last_time = float(t)
         d = self.fields(self.splats["means"].detach(), self.time_column(t))
         return activate(
-            self.splats, self.active_sh_degree,
+            self.splats,
+            self.active_sh_degree,
             means=rigid_warp(self.splats["means"], d["warp"]),
             scales=torch.exp(self.splats["scales"]) + d["dscale"],
             quats=nn.functional.normalize(self.splats["quats"], dim=-1) + d["drot"],
@@ -266,22 +301,34 @@ class Grid4DExpert(DeformingExpert):
         enc, loss = self.fields.encoder, zero
         if c.lambda_spatial > 0:
             loss = loss + c.lambda_spatial * perturbation_loss(
-                enc.encode_spatial, xyz, xyz.new_tensor(c.spatial_perturb), c.spatial_downsample_ratio)
+                enc.encode_spatial, xyz, xyz.new_tensor(c.spatial_perturb), c.spatial_downsample_ratio
+            )
         if c.lambda_temporal > 0:
             loss = loss + c.lambda_temporal * perturbation_loss(
-                enc.encode_temporal, xyzt, xyzt.new_tensor(c.temporal_perturb), c.temporal_downsample_ratio)
+                enc.encode_temporal, xyzt, xyzt.new_tensor(c.temporal_perturb), c.temporal_downsample_ratio
+            )
         return loss
 
     def param_groups(self) -> list[ParamGroup]:
         c, base = self.config, self.config.means_lr
         return [
             *super().param_groups(),
-            ParamGroup("deform", list(self.fields.network.parameters()), base * c.network_lr_scale,
-                       lr_final=c.means_lr_final, lr_delay_mult=c.lr_delay_mult,
-                       max_steps=c.deform_lr_max_steps),
-            ParamGroup("grid", list(self.fields.encoder.parameters()), base * c.grid_lr_scale,
-                       lr_final=c.means_lr_final * c.grid_lr_scale, lr_delay_mult=c.lr_delay_mult,
-                       max_steps=c.deform_lr_max_steps),
+            ParamGroup(
+                "deform",
+                list(self.fields.network.parameters()),
+                base * c.network_lr_scale,
+                lr_final=c.means_lr_final,
+                lr_delay_mult=c.lr_delay_mult,
+                max_steps=c.deform_lr_max_steps,
+            ),
+            ParamGroup(
+                "grid",
+                list(self.fields.encoder.parameters()),
+                base * c.grid_lr_scale,
+                lr_final=c.means_lr_final * c.grid_lr_scale,
+                lr_delay_mult=c.lr_delay_mult,
+                max_steps=c.deform_lr_max_steps,
+            ),
         ]
 
 

@@ -129,8 +129,12 @@ class MCMCExpert(StaticExpert):
         """Index of the model whose key time is nearest to ``t``."""
         return int((self.key_times - t).abs().argmin())
 
+    def frame_rows(self, t: float) -> Tensor:
+        """Rows of the model nearest to ``t``."""
+        return (self.splats[MODEL_KEY] == self.model_index(t)).nonzero(as_tuple=True)[0]
+
     def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
-        members = (self.splats[MODEL_KEY] == self.model_index(t)).nonzero(as_tuple=True)[0]
+        members = self.frame_rows(t)
         return activate({k: v[members] for k, v in self.splats.items()}, self.active_sh_degree)
 
     def view_groups(self, views: list[View]) -> list[int]:

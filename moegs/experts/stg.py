@@ -29,6 +29,7 @@ from __future__ import annotations
 import bisect
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 
 import torch
@@ -36,13 +37,20 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import PointCloud, Scene, View
-from moegs.experts.base import Expert, ExpertConfig, ParamGroup
+from moegs.experts.base import (
+    Expert,
+    ExpertConfig,
+    ParamGroup,
+    SplatInputs,
+    check_keep,
+    render_splat_inputs,
+)
 from moegs.experts.canonical import QUICK_ITERATIONS
 from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats
 from moegs.experts.static import QUICK_RESOLUTION, scene_points, thin_points
 from moegs.experts.stg_decoder import FeatureDecoder
 from moegs.gaussians import GaussianFrame
-from moegs.render import RenderOutput, rasterize
+from moegs.render import RenderOutput
 from moegs.train.config import TrainConfig
 from moegs.train.strategy import ADCStrategy, Strategy, ops
 
@@ -320,22 +328,15 @@ class STGExpert(Expert):
     def decode(self, features: Tensor, camera: Camera) -> Tensor:
         return self.fields(features, camera) if self.config.color == "full" else features
 
-    def render(
-        self, camera: Camera, background: Tensor | None, backend: str = "auto", return_stats: bool = False
-    ) -> tuple[Tensor, RenderOutput, GaussianFrame]:
-        """Splat (9 feature channels for the full model, over ``FeatureDecoder.background``), then decode."""
+    def splat_inputs(self, camera: Camera, background: Tensor | None) -> SplatInputs:
+        """9 feature channels over ``FeatureDecoder.background`` for the full model (decoded per view),
+        SH or RGB otherwise."""
         frame = self.frame(camera.time, camera)
-        if background is not None and self.config.color == "full":
+        if self.config.color != "full":
+            return SplatInputs(frame, background, self.config.antialiased)
+        if background is not None:
             background = self.fields.background(background)
-        out = rasterize(
-            frame,
-            camera,
-            background=background,
-            antialiased=self.config.antialiased,
-            return_stats=return_stats,
-            backend=backend,
-        )
-        return self.decode(out.image, camera), out, frame
+        return SplatInputs(frame, background, self.config.antialiased, partial(self.decode, camera=camera))
 
     # -- training ---------------------------------------------------------------------------------------
     def select_views(
@@ -454,14 +455,27 @@ class STGSegments(nn.Module):
         model, local = self.locate(t)
         return model.frame(local, camera)
 
-    def decode(self, features: Tensor, camera: Camera) -> Tensor:
-        return self.locate(camera.time)[0].decode(features, camera)
+    def splat_inputs(self, camera: Camera, background: Tensor | None) -> SplatInputs:
+        """The inputs of the segment model holding ``camera.time``, queried at its local time."""
+        model, local = self.locate(camera.time)
+        return model.splat_inputs(camera.at_time(local), background)
 
     def render(
         self, camera: Camera, background: Tensor | None, backend: str = "auto", return_stats: bool = False
     ) -> tuple[Tensor, RenderOutput, GaussianFrame]:
-        model, local = self.locate(camera.time)
-        return model.render(camera.at_time(local), background, backend, return_stats)
+        return render_splat_inputs(self.splat_inputs(camera, background), camera, backend, return_stats)
+
+    def frame_rows(self, t: float) -> Tensor:
+        k = segment_index(t, [b[0] for b in self.bounds])
+        start = sum(m.num_gaussians for m in self.models[:k])
+        return torch.arange(
+            start, start + self.models[k].num_gaussians, device=self.models[k].splats["means"].device
+        )
+
+    def keep_gaussians(self, keep: Tensor) -> None:
+        check_keep(keep, self.num_gaussians)
+        for model, part in zip(self.models, keep.split([m.num_gaussians for m in self.models]), strict=True):
+            model.keep_gaussians(part)
 
 
 def train_segments(
