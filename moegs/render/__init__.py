@@ -199,7 +199,7 @@ def _rasterizer(backend: str):
 
 
 # -- the shared pipeline ----------------------------------------------------------------------------
-def _colors(frame: GaussianFrame, camera: Camera, sh_degree: int | None) -> Tensor:
+def frame_colors(frame: GaussianFrame, camera: Camera, sh_degree: int | None = None) -> Tensor:
     """Per-Gaussian channels ``[N, C]``: ``frame.colors``, or SH evaluated towards ``camera``."""
     if frame.sh is None:
         if sh_degree is not None:
@@ -228,7 +228,7 @@ def _render(
 ) -> _Rendered:
     """Colours -> projection -> one composite for ``num_groups`` groups -> depth -> background."""
     backend = _resolve_backend(backend, frame.means)
-    colors = _colors(frame, camera, sh_degree)
+    colors = frame_colors(frame, camera, sh_degree)
     parts = [colors] + ([extra] if extra is not None else [])
     if return_depth:
         parts.append(camera_points(frame.means, camera)[:, 2:])
@@ -317,4 +317,4 @@ def rasterize(
 
 from moegs.render.multi import MultiRenderOutput, rasterize_multi  # noqa: E402 - multi uses _render
 
-__all__ = ["BACKENDS", "MultiRenderOutput", "RenderOutput", "rasterize", "rasterize_multi"]
+__all__ = ["BACKENDS", "MultiRenderOutput", "RenderOutput", "frame_colors", "rasterize", "rasterize_multi"]

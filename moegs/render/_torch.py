@@ -103,7 +103,7 @@ def _composite(
     t_incl = torch.exp(csum - offset)
     t_excl = torch.exp(csum - log_keep - offset)
     keep = (t_incl >= T_MIN).to(alpha.dtype)
-    weight = (keep * alpha * t_excl.to(alpha.dtype))
+    weight = keep * alpha * t_excl.to(alpha.dtype)
 
     out_index = groups[gauss] * hw + pix
     image = torch.zeros(num_groups * hw, d, dtype=colors.dtype, device=colors.device)

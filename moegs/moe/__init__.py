@@ -1,0 +1,30 @@
+"""MoE-GS: independently trained experts blended by a learned router (paper Sec. "Mixture of Experts for
+Dynamic Gaussian Splatting").
+
+    from moegs.moe import RouterConfig, train_router, load_moe
+    result = train_router([expert_a, expert_b], scene, RouterConfig.from_preset("quick"), "runs/moe")
+    model = load_moe("runs/moe", [expert_a, expert_b])
+    out = model.render(camera, scene.background)   # image [H, W, 3], gates [K, H, W], expert_images
+
+Modules: ``config`` (RouterConfig, presets, paper vs code conventions), ``splat`` (experts rendered in a
+single pass with per-Gaussian channels), ``routers`` (volume-aware pixel, pixel, volume routers),
+``model`` (MoEGS, checkpoint), ``train`` (stage-2 training and evaluation), ``visualize`` (gate maps).
+"""
+
+from moegs.moe.config import ROUTERS, RouterConfig
+from moegs.moe.model import MoEGS, load_moe
+from moegs.moe.routers import MoERender, PixelRouter, VolumeAwarePixelRouter, VolumeRouter
+from moegs.moe.train import evaluate_moe, train_router
+
+__all__ = [
+    "ROUTERS",
+    "MoEGS",
+    "MoERender",
+    "PixelRouter",
+    "RouterConfig",
+    "VolumeAwarePixelRouter",
+    "VolumeRouter",
+    "evaluate_moe",
+    "load_moe",
+    "train_router",
+]

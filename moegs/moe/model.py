@@ -1,0 +1,129 @@
+"""``MoEGS``: frozen experts + one router, rendered as one model; its checkpoint.
+
+model = MoEGS([ex4dgs, stg], RouterConfig.from_preset("quick"))
+out = model.render(camera, scene.background)     # out.image [H, W, 3], out.gates [K, H, W]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+
+from moegs.camera import Camera
+from moegs.data.scene import Scene
+from moegs.experts.base import Expert
+from moegs.io import from_dict, load_checkpoint, to_dict
+from moegs.moe.config import RouterConfig
+from moegs.moe.routers import MoERender, build_router
+
+ROUTER_CHECKPOINT = "router.safetensors"
+FORMAT = 1
+
+
+class MoEGS(nn.Module):
+    """Experts (frozen, always in eval mode) and the router that blends them.
+
+    Attributes:
+        experts: ``K`` trained experts; no parameter of theirs requires grad.
+        router: the router of ``config.variant`` (the only trainable part).
+        config: the ``RouterConfig``.
+    """
+
+    def __init__(self, experts: Sequence[Expert], config: RouterConfig) -> None:
+        super().__init__()
+        if not experts:
+            raise ValueError("MoEGS needs at least one expert")
+        self.config = config
+        self.experts = nn.ModuleList(experts)
+        self.experts.requires_grad_(False)
+        self.router = build_router(experts, config)
+        self.train(False)
+
+    def train(self, mode: bool = True) -> MoEGS:
+        """Router in ``mode``; experts stay in eval mode (their test-time behaviour is what is blended)."""
+        super().train(mode)
+        self.experts.eval()
+        return self
+
+    @property
+    def num_experts(self) -> int:
+        return len(self.experts)
+
+    @property
+    def num_gaussians(self) -> int:
+        return sum(e.num_gaussians for e in self.experts)
+
+    def render(
+        self,
+        camera: Camera,
+        background: Tensor | None,
+        single_pass: bool | None = None,
+        backend: str | None = None,
+    ) -> MoERender:
+        """The routed view at ``camera.time`` (``single_pass``/``backend`` default to the config's)."""
+        return self.router(
+            list(self.experts),
+            camera,
+            background,
+            single_pass=self.config.single_pass if single_pass is None else single_pass,
+            backend=backend or self.config.backend,
+        )
+
+    def checkpoint_state(self) -> dict[str, Any]:
+        """What ``load_moe`` needs besides the experts."""
+        return {
+            "format": FORMAT,
+            "config": to_dict(self.config),
+            "experts": [e.name for e in self.experts],
+            "num_gaussians": [e.num_gaussians for e in self.experts],
+            "router": dict(self.router.state_dict()),
+        }
+
+
+def _check_experts(state: dict, experts: Sequence[Expert], path: Path) -> None:
+    names = [e.name for e in experts]
+    if state["experts"] != names:
+        raise ValueError(f"{path}: router was trained for experts {state['experts']}, got {names}")
+    counts = [e.num_gaussians for e in experts]
+    if list(state["num_gaussians"]) != counts:
+        raise ValueError(
+            f"{path}: router was trained for experts with {state['num_gaussians']} Gaussians, got {counts}; "
+            "load the same expert checkpoints the router was trained on"
+        )
+
+
+def read_router(path: str | Path) -> dict[str, Any]:
+    """The router checkpoint at ``path`` (the file or its run folder), format checked."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / ROUTER_CHECKPOINT
+    if not path.is_file():
+        raise FileNotFoundError(f"no router checkpoint at {path} (written by moegs.moe.train_router)")
+    state = load_checkpoint(path)
+    if state.get("format") != FORMAT:
+        raise ValueError(
+            f"{path}: router checkpoint format {state.get('format')!r}, this moegs reads {FORMAT}"
+        )
+    return state
+
+
+def load_moe(path: str | Path, experts: Sequence[Expert], scene: Scene | None = None) -> MoEGS:
+    """The trained MoE-GS model of ``path`` (a ``train_router`` folder or its checkpoint) over ``experts``
+    (the same trained experts, in the same order). ``scene`` is accepted for symmetry with
+    ``load_expert`` and is not needed. Returned in eval mode."""
+    state = read_router(path)
+    _check_experts(state, experts, Path(path))
+    model = MoEGS(experts, from_dict(RouterConfig, state["config"]))
+    model.router.load_state_dict(state["router"])
+    return model.eval()
+
+
+@torch.no_grad()
+def winner_shares(gates: Tensor) -> list[float]:
+    """Fraction of pixels where each expert has the largest gate, ``K`` floats."""
+    k = gates.shape[0]
+    return torch.bincount(gates.argmax(0).flatten(), minlength=k).div(gates[0].numel()).tolist()

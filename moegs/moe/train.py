@@ -1,0 +1,217 @@
+"""Stage 2 of MoE-GS: train the router over frozen experts, evaluate the blend.
+
+Per 1-based iteration (one training view per step, shuffled over all cameras and frames, as the code's
+``mini_batch: 1``)::
+
+    lr = schedules(step)                      # w, w_dir: 0.5 decayed; w_time and Phi: 0.05 constant
+    out = model.render(view.camera)           # experts + weight maps in one pass, router, blend
+    loss = (1 - 0.2) L1(out.image, gt) + 0.2 (1 - SSIM)
+    backward; RAdam step                      # only router parameters have gradients
+
+Example::
+
+    >>> result = train_router([ex4dgs, stg], scene, RouterConfig.from_preset("quick"), "runs/moe")
+    >>> result["test"]["psnr"], [e["psnr"] for e in result["experts_test"]]
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+from tqdm.auto import tqdm
+
+from moegs.data.scene import Scene, View
+from moegs.experts.base import Expert, ParamGroup
+from moegs.io import save_checkpoint, to_dict, write_json
+from moegs.metrics import evaluate_images
+from moegs.moe.config import RouterConfig
+from moegs.moe.model import ROUTER_CHECKPOINT, MoEGS, _check_experts, read_router, winner_shares
+from moegs.train.evaluate import eval_views
+from moegs.train.losses import photometric
+from moegs.train.optim import Optimizers
+from moegs.train.sampler import ViewSampler
+
+RADAM_EPS = 1e-8
+"""The code builds ``torch.optim.RAdam(..., lr=0.001)`` with torch's default eps."""
+
+
+def router_param_groups(model: MoEGS) -> list[ParamGroup]:
+    """RAdam groups with the paper's rates; only ``w`` (w, w_dir) is decayed (code ``f_m``)."""
+    c = model.config
+    rates = {
+        "w": {"lr": c.lr_w, "lr_final": c.lr_w * c.lr_w_final_ratio, "max_steps": c.decay_steps},
+        "w_time": {"lr": c.lr_time},
+        "phi": {"lr": c.lr_phi},
+    }
+    return [
+        ParamGroup(name, params, optimizer="radam", eps=RADAM_EPS, **rates[name])
+        for name, params in model.router.param_groups().items()
+    ]
+
+
+@torch.no_grad()
+def evaluate_moe(model: MoEGS, views: Sequence[View], background, profile: str = "moegs") -> dict[str, Any]:
+    """Metrics of the blend and of every expert on ``views`` (one render per view), and the share of
+    pixels each expert wins.
+
+    Returns:
+        ``{"psnr", "ssim", "lpips", "lpips_unavailable", "num_views", "per_view", "experts": [{"name",
+        "psnr", "ssim", "lpips"}], "winner_share": [K floats]}``.
+    """
+    if not views:
+        raise ValueError("evaluate_moe needs at least one view")
+    keys = ("psnr", "ssim", "lpips")
+    per_view, per_expert, shares, unavailable = [], [[] for _ in model.experts], [], None
+    for view in views:
+        out = model.render(view.camera, background)
+        target = view.image()
+        scores = evaluate_images(out.image, target, profile)
+        unavailable = scores["lpips_unavailable"]
+        per_view.append({"key": view.key, "time": view.camera.time, **{k: scores[k] for k in keys}})
+        for k, image in enumerate(out.expert_images):
+            per_expert[k].append(evaluate_images(image, target, profile))
+        shares.append(winner_shares(out.gates))
+
+    def mean(rows: list[dict], key: str) -> float | None:
+        values = [r[key] for r in rows]
+        return None if any(v is None for v in values) else sum(values) / len(values)
+
+    return {
+        **{k: mean(per_view, k) for k in keys},
+        "lpips_unavailable": unavailable,
+        "num_views": len(views),
+        "per_view": per_view,
+        "experts": [
+            {"name": e.name, **{k: mean(rows, k) for k in keys}}
+            for e, rows in zip(model.experts, per_expert, strict=True)
+        ],
+        "winner_share": torch.tensor(shares).mean(0).tolist(),
+    }
+
+
+def _state(model: MoEGS, step: int, optimizers: Optimizers, sampler: ViewSampler, history: list[float]):
+    return {
+        **model.checkpoint_state(),
+        "step": step,
+        "optimizers": optimizers.state_dict(),
+        "sampler": sampler.state_dict(),
+        "rng": {"torch": torch.get_rng_state()},
+        "history": list(history),
+    }
+
+
+def train_router(
+    experts: Sequence[Expert],
+    scene: Scene,
+    config: RouterConfig | None = None,
+    out_dir: str | Path | None = None,
+    *,
+    resume: bool = True,
+    progress: bool = False,
+    stop_after: int | None = None,
+) -> dict[str, Any]:
+    """Train a router over the frozen ``experts`` on ``scene``'s training views, then evaluate.
+
+    Args:
+        experts: trained experts (frozen here; their parameters are never changed).
+        scene: the scene they were trained on.
+        config: router settings (default: the ``quick`` preset).
+        out_dir: where ``router.safetensors`` (resumable), ``config.json`` and ``metrics.json`` go.
+        resume: continue from ``out_dir``'s checkpoint when there is one.
+        progress: show a tqdm bar.
+        stop_after: stop with a checkpoint after this iteration, as if interrupted.
+
+    Returns:
+        ``{"router", "experts", "scene", "stand_in", "completed", "step", "iterations", "train_seconds",
+        "final_loss", "resumed_from", "test" (``evaluate_moe``; None when stopped early)}``.
+    """
+    config = config or RouterConfig.from_preset("quick")
+    torch.manual_seed(config.seed)
+    model = MoEGS(experts, config)
+    optimizers = Optimizers(router_param_groups(model))
+    sampler = ViewSampler([0] * len(scene.train), 1, config.seed)
+    out = Path(out_dir) if out_dir is not None else None
+    ckpt = out / ROUTER_CHECKPOINT if out is not None else None
+    done, history, resumed_from = 0, [], None
+    if resume and ckpt is not None and ckpt.is_file():
+        state = read_router(ckpt)
+        _check_experts(state, experts, ckpt)
+        if state["config"] != to_dict(config):
+            raise ValueError(
+                f"{ckpt} was written with another router config; use a new out_dir or resume=False"
+            )
+        model.router.load_state_dict(state["router"])
+        optimizers.load_state_dict(state["optimizers"])
+        sampler.load_state_dict(state["sampler"])
+        torch.set_rng_state(state["rng"]["torch"])
+        done = resumed_from = state["step"]
+        history = list(state["history"])
+    if out is not None:
+        write_json(
+            out / "config.json",
+            {
+                "router": to_dict(config),
+                "experts": [e.name for e in experts],
+                "scene": scene.name,
+                "stand_in": scene.stand_in,
+            },
+        )
+
+    last = config.iterations if stop_after is None else min(stop_after, config.iterations)
+    names = "+".join(e.name for e in experts)
+    bar = tqdm(
+        range(done + 1, last + 1),
+        initial=done,
+        total=config.iterations,
+        disable=not progress,
+        desc=f"{config.variant} router over {names}",
+        dynamic_ncols=True,
+    )
+    seconds = 0.0
+    model.train()
+    for step in bar:
+        start = time.perf_counter()
+        optimizers.set_step(step)
+        view = scene.train[sampler.next()[0]]
+        rendered = model.render(view.camera, scene.background)
+        loss = photometric(rendered.image, view.image(), config.lambda_dssim)
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"router step {step}: loss of view {view.key} is {float(loss)}")
+        loss.backward()
+        optimizers.step()
+        optimizers.zero_grad()
+        history.append(float(loss.detach()))
+        done = step
+        seconds += time.perf_counter() - start
+        if step % 10 == 0:
+            bar.set_postfix(loss=f"{history[-1]:.4f}")
+        if ckpt is not None and config.checkpoint_every and step % config.checkpoint_every == 0:
+            save_checkpoint(ckpt, _state(model, step, optimizers, sampler, history))
+    bar.close()
+    if ckpt is not None:
+        save_checkpoint(ckpt, _state(model, done, optimizers, sampler, history))
+
+    model.eval()
+    completed = done >= config.iterations
+    test_views = eval_views(scene.test, config.max_eval_views)
+    test = evaluate_moe(model, test_views, scene.background, config.metric_profile) if completed else None
+    result = {
+        "router": config.variant,
+        "experts": [e.name for e in experts],
+        "scene": scene.name,
+        "stand_in": scene.stand_in,
+        "completed": completed,
+        "step": done,
+        "iterations": config.iterations,
+        "train_seconds": seconds,
+        "final_loss": history[-1] if history else None,
+        "resumed_from": resumed_from,
+        "test": test,
+    }
+    if out is not None:
+        write_json(out / "metrics.json", result)
+    return result

@@ -1,0 +1,168 @@
+"""MoE-GS routers on a tiny scene: convex gates, one-expert identity, frozen experts, exact geometry of
+the weight splat, single pass == separate passes, per-frame experts' rows."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+import torch
+
+from moegs.experts import get_expert_class
+from moegs.moe import MoEGS, RouterConfig
+from moegs.moe.splat import expert_inputs, splat_experts
+from moegs.render import frame_colors, rasterize
+from helpers.scenes import tiny_scene
+
+ROUTERS = ("vapr", "pixel", "volume")
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return tiny_scene(num_frames=3, cameras=3, size=24, num_points=120)
+
+
+def make_expert(name: str, scene, seed: int = 0):
+    cls = get_expert_class(name)
+    config = cls.config_class.from_preset("quick")
+    config = replace(config, train=replace(config.train, seed=seed))
+    return cls.from_scene(scene, config).eval()
+
+
+@pytest.fixture(scope="module")
+def experts(scene):
+    """A static 3DGS, per-frame 3DGS-MCMC (frame(t) is a subset of rows) and Ex4DGS (antialiased)."""
+    return [make_expert("static", scene), make_expert("mcmc", scene, 1), make_expert("ex4dgs", scene, 2)]
+
+
+def config(variant: str, **kw) -> RouterConfig:
+    return replace(RouterConfig.from_preset("quick"), variant=variant, **kw)
+
+
+@pytest.mark.parametrize("variant", ROUTERS)
+def test_gates_are_convex_at_every_pixel(scene, experts, variant):
+    model = MoEGS(experts, config(variant))
+    with torch.no_grad():
+        for p in model.router.parameters():
+            p.normal_()  # non-uniform routing
+        out = model.render(scene.test[1].camera, scene.background)
+    k, h, w = out.gates.shape
+    assert (k, h, w) == (3, 24, 24) and out.image.shape == (24, 24, 3)
+    assert out.expert_images.shape == (3, 24, 24, 3)
+    assert (out.gates >= 0).all()
+    torch.testing.assert_close(out.gates.sum(0), torch.ones(h, w))
+    if variant != "volume":
+        torch.testing.assert_close(out.image, (out.gates[..., None] * out.expert_images).sum(0))
+
+
+@pytest.mark.parametrize("variant", ROUTERS)
+def test_one_expert_moe_is_that_expert(scene, experts, variant):
+    model = MoEGS(experts[:1], config(variant))
+    camera = scene.test[0].camera
+    with torch.no_grad():
+        out = model.render(camera, scene.background)
+        alone = experts[0].render(camera, scene.background)[0]
+    tol = {"atol": 1e-4, "rtol": 0} if variant == "volume" else {"atol": 1e-6, "rtol": 0}
+    torch.testing.assert_close(out.image, alone, **tol)
+    torch.testing.assert_close(out.expert_images[0], alone, atol=1e-6, rtol=0)
+
+
+@pytest.mark.parametrize("variant", ROUTERS)
+def test_only_router_parameters_get_gradients(scene, experts, variant):
+    model = MoEGS(experts, config(variant)).train()
+    view = scene.train[4]
+    out = model.render(view.camera, scene.background)
+    (out.image - view.image()).abs().mean().backward()
+    assert all(p.grad is None and not p.requires_grad for p in model.experts.parameters())
+    router_grads = [p.grad for p in model.router.parameters()]
+    assert router_grads and all(g is not None for g in router_grads)
+    assert any(g.abs().sum() > 0 for g in router_grads)
+    assert all(not e.training for e in model.experts)  # experts stay in eval mode
+
+
+def test_weight_splat_uses_the_expert_geometry_at_t(scene, experts):
+    """The splatted weight map of each expert equals a plain rasterize of that expert's frame(t) with the
+    routing features as colours (and background 1 where nothing covers the pixel)."""
+    model = MoEGS(experts, config("vapr"))
+    with torch.no_grad():
+        for p in model.router.weights.mix:
+            p.uniform_(-1, 1)
+    camera = scene.train[7].camera  # t = 0.5
+    router = model.router
+    inputs = expert_inputs(experts, camera, scene.background)
+    feats = [router.features(k, e, camera.time) for k, e in enumerate(experts)]
+    splat = splat_experts(inputs, camera, extras=feats)
+    for k, expert in enumerate(experts):
+        frame = expert.frame(camera.time, camera)
+        rows = expert.frame_rows(camera.time)
+        mix = router.weights.mix[k] if rows is None else router.weights.mix[k][rows]
+        torch.testing.assert_close(feats[k][:, :2], mix)
+        ref = rasterize(frame.with_colors(feats[k]), camera, antialiased=inputs[k].antialiased)
+        torch.testing.assert_close(splat.extras[k], ref.image, atol=1e-5, rtol=0)
+        torch.testing.assert_close(splat.alphas[k], ref.alpha, atol=1e-5, rtol=0)
+
+
+def test_single_pass_equals_separate_renders(scene, experts):
+    camera = scene.test[2].camera
+    inputs = expert_inputs(experts, camera, scene.background)
+    one = splat_experts(inputs, camera, single_pass=True)
+    sep = splat_experts(inputs, camera, single_pass=False)
+    assert one.passes == 2 and sep.passes == 3  # static + mcmc share a pass; ex4dgs is antialiased
+    torch.testing.assert_close(one.images, sep.images, atol=1e-5, rtol=0)
+    for k, expert in enumerate(experts):
+        with torch.no_grad():
+            torch.testing.assert_close(one.images[k], expert.render(camera, scene.background)[0], atol=1e-5, rtol=0)
+    same_mode = splat_experts(inputs[:2], camera)
+    assert same_mode.passes == 1
+
+
+def test_mixed_colour_widths_are_padded_and_decoded(scene):
+    """An STG expert with the full feature model (9 channels + decoder) renders in the same pass as RGB."""
+    stg = make_expert("stg", scene)
+    assert stg.config.color == "full"
+    static = make_expert("static", scene)
+    camera = scene.test[0].camera
+    inputs = expert_inputs([static, stg], camera, scene.background)
+    assert frame_colors(inputs[1].frame, camera).shape[1] == 9
+    with torch.no_grad():
+        one = splat_experts(inputs, camera)
+        torch.testing.assert_close(one.images[1], stg.render(camera, scene.background)[0], atol=1e-5, rtol=0)
+    assert one.passes == 1
+
+
+def test_phi_kernel_paper_and_code(experts):
+    paper = MoEGS(experts, config("vapr")).router.phi
+    code = MoEGS(experts, replace(RouterConfig.from_preset("code"), iterations=5)).router.phi
+    assert [m.kernel_size for m in paper if hasattr(m, "kernel_size")] == [(3, 3)] * 3
+    assert [m.kernel_size for m in code if hasattr(m, "kernel_size")] == [(1, 1)] * 3
+    assert [(m.in_channels, m.out_channels) for m in code if hasattr(m, "in_channels")] == [(8, 6), (6, 3), (3, 1)]
+    assert all(m.bias is None for m in code if hasattr(m, "bias"))
+
+
+def test_initial_routing_weights_follow_the_config(experts):
+    paper = MoEGS(experts, config("vapr")).router.weights
+    code = MoEGS(experts, RouterConfig.from_preset("code")).router.weights
+    assert torch.equal(paper.mix[0][0], torch.tensor([0.9, 0.0])) and torch.equal(code.mix[0][0], torch.tensor([0.9, 0.9]))
+    assert all(t.abs().sum() == 0 for t in paper.time)
+    assert [p.shape[0] for p in paper.mix] == [e.num_gaussians for e in experts]
+
+
+def test_temperature_applies_in_training_only():
+    cfg = RouterConfig.from_preset("code")
+    assert cfg.train_temperature == 0.01 and cfg.eval_temperature == 1.0
+    assert RouterConfig.from_preset("paper").train_temperature == 1.0
+
+
+def test_bad_config_and_presets_are_named():
+    with pytest.raises(ValueError, match="variant must be one of"):
+        RouterConfig(variant="gate")
+    with pytest.raises(ValueError, match="phi_kernel"):
+        RouterConfig(phi_kernel=5)
+    with pytest.raises(ValueError, match="valid presets: quick, paper, code"):
+        RouterConfig.from_preset("fast")
+
+
+def test_volume_router_refuses_feature_experts(scene):
+    model = MoEGS([make_expert("static", scene), make_expert("stg", scene)], config("volume"))
+    with pytest.raises(ValueError, match="must splat RGB"):
+        model.render(scene.test[0].camera, scene.background)

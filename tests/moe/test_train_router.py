@@ -1,0 +1,92 @@
+"""Stage-2 router training on a tiny scene: it learns to prefer the good expert, resumes exactly, saves
+and reloads, and refuses mismatched experts."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import pytest
+import torch
+
+from helpers.scenes import tiny_scene
+from moegs.experts import get_expert_class
+from moegs.moe import RouterConfig, load_moe, train_router
+from moegs.moe.model import MoEGS
+from moegs.moe.train import router_param_groups
+from moegs.train.loop import train
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return tiny_scene(num_frames=2, cameras=3, size=32, num_points=150)
+
+
+@pytest.fixture(scope="module")
+def experts(scene):
+    """A static 3DGS trained for 40 steps (good) and an untrained one (bad)."""
+    cls = get_expert_class("static")
+    cfg = cls.config_class.from_preset("quick")
+    good = cls.from_scene(scene, replace(cfg, train=replace(cfg.train, iterations=40, seed=0)))
+    train(good, scene, progress=False)
+    bad = cls.from_scene(scene, replace(cfg, train=replace(cfg.train, seed=1)))
+    return [good.eval(), bad.eval()]
+
+
+def cfg(**kw) -> RouterConfig:
+    return replace(RouterConfig.from_preset("quick"), **{"iterations": 30, **kw})
+
+
+def test_router_learns_to_prefer_the_good_expert(scene, experts, tmp_path):
+    result = train_router(experts, scene, cfg(), tmp_path)
+    test = result["test"]
+    assert result["completed"] and result["step"] == 30
+    assert [e["name"] for e in test["experts"]] == ["static", "static"]
+    good, bad = (e["psnr"] for e in test["experts"])
+    assert good > bad + 3
+    assert test["psnr"] > 0.5 * (good + bad)  # better than the initial uniform blend's neighbourhood
+    assert test["winner_share"][0] > 0.6
+    assert math.isfinite(result["final_loss"])
+    for name in ("router.safetensors", "config.json", "metrics.json"):
+        assert (tmp_path / name).is_file()
+
+
+def test_param_groups_have_the_paper_rates(experts):
+    groups = {g.name: g for g in router_param_groups(MoEGS(experts, cfg()))}
+    assert set(groups) == {"w", "w_time", "phi"}
+    assert groups["w"].lr == 0.5 and groups["w"].lr_final == pytest.approx(0.005)
+    assert groups["w"].max_steps == 60  # code: 10000 steps for 5000 iterations
+    assert groups["w_time"].lr == 0.05 and groups["w_time"].lr_final is None
+    assert groups["phi"].lr == 0.05 and all(g.optimizer == "radam" for g in groups.values())
+
+
+def test_interrupted_training_resumes_exactly(scene, experts, tmp_path):
+    full = train_router(experts, scene, cfg(iterations=8), tmp_path / "full")
+    train_router(experts, scene, cfg(iterations=8), tmp_path / "cut", stop_after=3)
+    resumed = train_router(experts, scene, cfg(iterations=8), tmp_path / "cut")
+    assert resumed["resumed_from"] == 3 and resumed["completed"]
+    a = load_moe(tmp_path / "full", experts).router.state_dict()
+    b = load_moe(tmp_path / "cut", experts).router.state_dict()
+    for key in a:
+        torch.testing.assert_close(a[key], b[key], atol=1e-6, rtol=0)
+    assert resumed["test"]["psnr"] == pytest.approx(full["test"]["psnr"], abs=1e-4)
+
+
+def test_reload_renders_the_same(scene, experts, tmp_path):
+    train_router(experts, scene, cfg(iterations=5), tmp_path)
+    model = load_moe(tmp_path, experts)
+    assert not model.training
+    again = load_moe(tmp_path, experts)
+    cam = scene.test[0].camera
+    with torch.no_grad():
+        torch.testing.assert_close(model.render(cam, scene.background).image, again.render(cam, scene.background).image)
+
+
+def test_mismatched_experts_and_missing_checkpoint_are_named(scene, experts, tmp_path):
+    train_router(experts, scene, cfg(iterations=2), tmp_path)
+    with pytest.raises(ValueError, match="trained for experts"):
+        load_moe(tmp_path, experts[:1])
+    with pytest.raises(FileNotFoundError, match="no router checkpoint"):
+        load_moe(tmp_path / "nowhere", experts)
+    with pytest.raises(ValueError, match="another router config"):
+        train_router(experts, scene, cfg(iterations=3, lr_phi=0.1), tmp_path)
