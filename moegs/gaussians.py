@@ -81,8 +81,13 @@ class GaussianFrame:
 
     # -- transforms -----------------------------------------------------------------------------
     def _map(self, fn) -> GaussianFrame:
-        return replace(self, **{f.name: None if getattr(self, f.name) is None else fn(getattr(self, f.name))
-                                for f in fields(self)})
+        return replace(
+            self,
+            **{
+                f.name: None if getattr(self, f.name) is None else fn(getattr(self, f.name))
+                for f in fields(self)
+            },
+        )
 
     def detach(self) -> GaussianFrame:
         return self._map(Tensor.detach)
@@ -115,10 +120,14 @@ def cat(frames: list[GaussianFrame]) -> tuple[GaussianFrame, Tensor]:
             raise ValueError(f"frame {k} mixes `sh` and `colors` with frame 0; convert one of them first")
         ref, got = (frames[0].sh, f.sh) if use_sh else (frames[0].colors, f.colors)
         if ref.shape[1:] != got.shape[1:]:
-            raise ValueError(f"frame {k} has colour shape {list(got.shape[1:])}, frame 0 has {list(ref.shape[1:])}")
+            raise ValueError(
+                f"frame {k} has colour shape {list(got.shape[1:])}, frame 0 has {list(ref.shape[1:])}"
+            )
     joined = {}
     for f in fields(GaussianFrame):
         parts = [getattr(fr, f.name) for fr in frames]
         joined[f.name] = None if parts[0] is None else torch.cat(parts, dim=0)
-    ids = torch.cat([torch.full((len(fr),), k, dtype=torch.long, device=fr.device) for k, fr in enumerate(frames)])
+    ids = torch.cat(
+        [torch.full((len(fr),), k, dtype=torch.long, device=fr.device) for k, fr in enumerate(frames)]
+    )
     return GaussianFrame(**joined), ids

@@ -68,7 +68,8 @@ class View:
 
 @dataclass
 class PointCloud:
-    """Initial points ``xyz [P, 3]`` and colours ``rgb [P, 3]`` in [0, 1]; ``source`` says how they were made."""
+    """Initial points ``xyz [P, 3]`` and colours ``rgb [P, 3]`` in [0, 1]; ``source`` says how they were
+    made."""
 
     xyz: Tensor
     rgb: Tensor
@@ -79,7 +80,9 @@ class PointCloud:
         if self.xyz.ndim != 2 or self.xyz.shape[1] != 3:
             raise ValueError(f"PointCloud.xyz must have shape [P, 3], got {list(self.xyz.shape)}")
         if self.rgb.shape != self.xyz.shape:
-            raise ValueError(f"PointCloud.rgb must have shape {list(self.xyz.shape)}, got {list(self.rgb.shape)}")
+            raise ValueError(
+                f"PointCloud.rgb must have shape {list(self.xyz.shape)}, got {list(self.rgb.shape)}"
+            )
         if not torch.isfinite(self.xyz).all():
             raise ValueError(f"PointCloud.xyz ({self.source}) contains NaN or Inf")
 
@@ -137,6 +140,8 @@ class Scene:
 
     def summary(self) -> str:
         cam = self.train[0].camera
-        return (f"{self.name}: {len(self.train)} train / {len(self.test)} test views, {self.num_frames} frames, "
-                f"{cam.width}x{cam.height}, {'multi' if self.multiview else 'mono'}-view"
-                + (f", stand-in for {self.stand_in}" if self.stand_in else ""))
+        return (
+            f"{self.name}: {len(self.train)} train / {len(self.test)} test views, {self.num_frames} frames, "
+            f"{cam.width}x{cam.height}, {'multi' if self.multiview else 'mono'}-view"
+            + (f", stand-in for {self.stand_in}" if self.stand_in else "")
+        )

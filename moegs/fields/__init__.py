@@ -6,6 +6,16 @@ from moegs.fields.mlp import Heads, SkipMLP, mlp, xavier_weights_
 from moegs.fields.positional import PositionalEncoding, positional_encoding
 
 __all__ = [
-    "DecomposedHashGrid4D", "HashGrid", "Heads", "HexPlane", "PositionalEncoding", "SkipMLP", "mlp",
-    "plane_smoothness", "positional_encoding", "sample_plane", "smoothstep", "xavier_weights_",
+    "DecomposedHashGrid4D",
+    "HashGrid",
+    "Heads",
+    "HexPlane",
+    "PositionalEncoding",
+    "SkipMLP",
+    "mlp",
+    "plane_smoothness",
+    "positional_encoding",
+    "sample_plane",
+    "smoothstep",
+    "xavier_weights_",
 ]

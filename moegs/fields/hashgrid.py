@@ -53,9 +53,15 @@ class HashGrid(nn.Module):
         log2_hashmap_size: ``log2`` of the largest per-level table.
     """
 
-    def __init__(self, input_dim: int = 3, num_levels: int = 16, level_dim: int = 2,
-                 base_resolution: int | Sequence[int] = 16, desired_resolution: int | Sequence[int] = 2048,
-                 log2_hashmap_size: int = 19) -> None:
+    def __init__(
+        self,
+        input_dim: int = 3,
+        num_levels: int = 16,
+        level_dim: int = 2,
+        base_resolution: int | Sequence[int] = 16,
+        desired_resolution: int | Sequence[int] = 2048,
+        log2_hashmap_size: int = 19,
+    ) -> None:
         super().__init__()
         if not 1 <= input_dim <= len(PRIMES):
             raise ValueError(f"input_dim must be 1..{len(PRIMES)}, got {input_dim}")
@@ -65,8 +71,10 @@ class HashGrid(nn.Module):
         self.log2_hashmap_size = log2_hashmap_size
         self.base = _per_dim(base_resolution, input_dim, "base_resolution")
         self.desired = _per_dim(desired_resolution, input_dim, "desired_resolution")
-        growth = [1.0 if num_levels == 1 else (h / b) ** (1.0 / (num_levels - 1))
-                  for b, h in zip(self.base, self.desired, strict=True)]
+        growth = [
+            1.0 if num_levels == 1 else (h / b) ** (1.0 / (num_levels - 1))
+            for b, h in zip(self.base, self.desired, strict=True)
+        ]
         max_size = 2**log2_hashmap_size
         scales, res, sizes = [], [], []
         for level in range(num_levels):
@@ -114,8 +122,9 @@ class HashGrid(nn.Module):
         out = None
         for corner in range(2**self.input_dim):
             bits = [(corner >> d) & 1 for d in range(self.input_dim)]
-            weight = torch.stack([w_hi[..., d] if b else 1.0 - w_hi[..., d]
-                                  for d, b in enumerate(bits)]).prod(0)  # [N, L]
+            weight = torch.stack(
+                [w_hi[..., d] if b else 1.0 - w_hi[..., d] for d, b in enumerate(bits)]
+            ).prod(0)  # [N, L]
             rows = self.level_index(cell + torch.tensor(bits, device=u.device)) + self.offsets[:-1]  # [N, L]
             # index_select: its backward is an index_add, much faster on CPU than advanced indexing
             feats = self.embeddings.index_select(0, rows.flatten()).view(n, self.num_levels, self.level_dim)
@@ -125,9 +134,11 @@ class HashGrid(nn.Module):
 
     def extra_repr(self) -> str:
         hashed = int((~self.dense).sum())
-        return (f"input_dim={self.input_dim}, levels={self.num_levels} ({hashed} hashed), "
-                f"level_dim={self.level_dim}, base={self.base}, desired={self.desired}, "
-                f"log2_T={self.log2_hashmap_size}, params={self.embeddings.numel()}")
+        return (
+            f"input_dim={self.input_dim}, levels={self.num_levels} ({hashed} hashed), "
+            f"level_dim={self.level_dim}, base={self.base}, desired={self.desired}, "
+            f"log2_T={self.log2_hashmap_size}, params={self.embeddings.numel()}"
+        )
 
 
 class DecomposedHashGrid4D(nn.Module):
@@ -146,20 +157,31 @@ class DecomposedHashGrid4D(nn.Module):
 
     PAIRS = ((0, 1), (1, 2), (0, 2))  # xyt, yzt, xzt
 
-    def __init__(self, bound: float = 1.6, spatial_levels: int = 16, spatial_level_dim: int = 2,
-                 spatial_base: int = 16, spatial_desired: int = 2048, spatial_log2_size: int = 19,
-                 temporal_levels: int = 32, temporal_level_dim: int = 2,
-                 temporal_base: int | Sequence[int] = (8, 8, 8),
-                 temporal_desired: int | Sequence[int] = (32, 32, 16), temporal_log2_size: int = 19) -> None:
+    def __init__(
+        self,
+        bound: float = 1.6,
+        spatial_levels: int = 16,
+        spatial_level_dim: int = 2,
+        spatial_base: int = 16,
+        spatial_desired: int = 2048,
+        spatial_log2_size: int = 19,
+        temporal_levels: int = 32,
+        temporal_level_dim: int = 2,
+        temporal_base: int | Sequence[int] = (8, 8, 8),
+        temporal_desired: int | Sequence[int] = (32, 32, 16),
+        temporal_log2_size: int = 19,
+    ) -> None:
         super().__init__()
         if bound <= 0:
             raise ValueError(f"bound must be positive, got {bound}")
         self.bound = float(bound)
-        self.spatial = HashGrid(3, spatial_levels, spatial_level_dim, spatial_base, spatial_desired,
-                                spatial_log2_size)
+        self.spatial = HashGrid(
+            3, spatial_levels, spatial_level_dim, spatial_base, spatial_desired, spatial_log2_size
+        )
         self.temporal = nn.ModuleList(
-            HashGrid(3, temporal_levels, temporal_level_dim, temporal_base, temporal_desired,
-                     temporal_log2_size)
+            HashGrid(
+                3, temporal_levels, temporal_level_dim, temporal_base, temporal_desired, temporal_log2_size
+            )
             for _ in self.PAIRS
         )
 

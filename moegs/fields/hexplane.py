@@ -54,8 +54,9 @@ def sample_plane(plane: Tensor, coords: Tensor) -> Tensor:
         raise ValueError(f"plane must have shape [1, C, H, W], got {list(plane.shape)}")
     if coords.ndim != 2 or coords.shape[-1] != 2:
         raise ValueError(f"coords must have shape [N, 2], got {list(coords.shape)}")
-    out = F.grid_sample(plane, coords.view(1, 1, -1, 2), mode="bilinear", padding_mode="border",
-                        align_corners=True)  # [1, C, 1, N]
+    out = F.grid_sample(
+        plane, coords.view(1, 1, -1, 2), mode="bilinear", padding_mode="border", align_corners=True
+    )  # [1, C, 1, N]
     return out[0, :, 0].transpose(0, 1)
 
 
@@ -80,10 +81,15 @@ class HexPlane(nn.Module):
         spatial_init: ``(a, b)`` of the uniform init of spatial planes.
     """
 
-    def __init__(self, resolution: Sequence[int] = (64, 64, 64, 25), feature_dim: int = 32,
-                 multires: Sequence[int] = (1, 2), aabb_min: Sequence[float] = (-1.6,) * 3,
-                 aabb_max: Sequence[float] = (1.6,) * 3,
-                 spatial_init: tuple[float, float] = (0.1, 0.5)) -> None:
+    def __init__(
+        self,
+        resolution: Sequence[int] = (64, 64, 64, 25),
+        feature_dim: int = 32,
+        multires: Sequence[int] = (1, 2),
+        aabb_min: Sequence[float] = (-1.6,) * 3,
+        aabb_max: Sequence[float] = (1.6,) * 3,
+        spatial_init: tuple[float, float] = (0.1, 0.5),
+    ) -> None:
         super().__init__()
         if len(resolution) != 4 or min(resolution) < 2:
             raise ValueError(f"resolution must be 4 ints >= 2 (x, y, z, t), got {list(resolution)}")

@@ -74,8 +74,9 @@ class Heads(nn.Module):
         relu_first: start each head with a ReLU (4DGaussians).
     """
 
-    def __init__(self, in_dim: int, outputs: Mapping[str, int], hidden: Sequence[int] = (),
-                 relu_first: bool = False) -> None:
+    def __init__(
+        self, in_dim: int, outputs: Mapping[str, int], hidden: Sequence[int] = (), relu_first: bool = False
+    ) -> None:
         super().__init__()
         if not outputs:
             raise ValueError("Heads needs at least one output")

@@ -6,8 +6,13 @@ from moegs.camera import Camera, intrinsics, look_at
 
 def _camera(**kw):
     eye = torch.tensor([0.0, -4.0, 1.0])
-    return Camera(K=intrinsics(50.0, 50.0, 32.0, 24.0), world_to_camera=look_at(eye, torch.zeros(3)),
-                  width=64, height=48, **kw)
+    return Camera(
+        K=intrinsics(50.0, 50.0, 32.0, 24.0),
+        world_to_camera=look_at(eye, torch.zeros(3)),
+        width=64,
+        height=48,
+        **kw,
+    )
 
 
 def test_look_at_is_opencv_and_rigid():
@@ -51,7 +56,9 @@ def test_scaled_keeps_rays():
     _, d_full = cam.rays()
     _, d_half = half.rays()
     corner_full = (d_full[0, 0] + d_full[1, 1]) / 2
-    torch.testing.assert_close(torch.nn.functional.normalize(corner_full, dim=0), d_half[0, 0], atol=1e-3, rtol=0)
+    torch.testing.assert_close(
+        torch.nn.functional.normalize(corner_full, dim=0), d_half[0, 0], atol=1e-3, rtol=0
+    )
 
 
 @pytest.mark.parametrize(
