@@ -1,4 +1,4 @@
-"""``moegs`` command line: list, train, eval, render, export.
+"""``moegs`` command line: list, train, eval, render, export, compare, route.
 
     moegs list
     moegs train --expert static --scene dnerf:mutant --preset quick --out runs/static-mutant
@@ -6,6 +6,7 @@
     moegs render runs/static-mutant            # test views -> PNGs, video.mp4, psnr.csv
     moegs export runs/static-mutant --time 0.5 --out mutant.ply
     moegs compare --experts all --scene panoptic:basketball --preset quick   # one table, all experts
+    moegs route --experts deformable,grid4d --scene dnerf:mutant     # MoE-GS router + gate maps
 
 Heavy modules (experts, rasterizer, loaders) are imported inside the commands, so ``moegs list``
 and ``--help`` stay fast.
@@ -158,6 +159,12 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     return compare.main(args)
 
 
+def _cmd_route(args: argparse.Namespace) -> int:
+    from moegs import route
+
+    return route.main(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="moegs", description="Mixture-of-Experts dynamic Gaussian Splatting"
@@ -197,6 +204,11 @@ def build_parser() -> argparse.ArgumentParser:
     from moegs.compare import add_arguments
 
     add_arguments(p)
+
+    p = sub.add_parser("route", help="MoE-GS: train experts, then a router over them; gate-map figures")
+    from moegs.route import add_arguments as add_route_arguments
+
+    add_route_arguments(p)
     return parser
 
 
@@ -207,6 +219,7 @@ _COMMANDS = {
     "render": _cmd_render,
     "export": _cmd_export,
     "compare": _cmd_compare,
+    "route": _cmd_route,
 }
 
 

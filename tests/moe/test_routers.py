@@ -7,12 +7,12 @@ from dataclasses import replace
 
 import pytest
 import torch
+from helpers.scenes import tiny_scene
 
 from moegs.experts import get_expert_class
 from moegs.moe import MoEGS, RouterConfig
 from moegs.moe.splat import expert_inputs, splat_experts
 from moegs.render import frame_colors, rasterize
-from helpers.scenes import tiny_scene
 
 ROUTERS = ("vapr", "pixel", "volume")
 
@@ -111,7 +111,9 @@ def test_single_pass_equals_separate_renders(scene, experts):
     torch.testing.assert_close(one.images, sep.images, atol=1e-5, rtol=0)
     for k, expert in enumerate(experts):
         with torch.no_grad():
-            torch.testing.assert_close(one.images[k], expert.render(camera, scene.background)[0], atol=1e-5, rtol=0)
+            torch.testing.assert_close(
+                one.images[k], expert.render(camera, scene.background)[0], atol=1e-5, rtol=0
+            )
     same_mode = splat_experts(inputs[:2], camera)
     assert same_mode.passes == 1
 
@@ -135,14 +137,20 @@ def test_phi_kernel_paper_and_code(experts):
     code = MoEGS(experts, replace(RouterConfig.from_preset("code"), iterations=5)).router.phi
     assert [m.kernel_size for m in paper if hasattr(m, "kernel_size")] == [(3, 3)] * 3
     assert [m.kernel_size for m in code if hasattr(m, "kernel_size")] == [(1, 1)] * 3
-    assert [(m.in_channels, m.out_channels) for m in code if hasattr(m, "in_channels")] == [(8, 6), (6, 3), (3, 1)]
+    assert [(m.in_channels, m.out_channels) for m in code if hasattr(m, "in_channels")] == [
+        (8, 6),
+        (6, 3),
+        (3, 1),
+    ]
     assert all(m.bias is None for m in code if hasattr(m, "bias"))
 
 
 def test_initial_routing_weights_follow_the_config(experts):
     paper = MoEGS(experts, config("vapr")).router.weights
     code = MoEGS(experts, RouterConfig.from_preset("code")).router.weights
-    assert torch.equal(paper.mix[0][0], torch.tensor([0.9, 0.0])) and torch.equal(code.mix[0][0], torch.tensor([0.9, 0.9]))
+    assert torch.equal(paper.mix[0][0], torch.tensor([0.9, 0.0])) and torch.equal(
+        code.mix[0][0], torch.tensor([0.9, 0.9])
+    )
     assert all(t.abs().sum() == 0 for t in paper.time)
     assert [p.shape[0] for p in paper.mix] == [e.num_gaussians for e in experts]
 

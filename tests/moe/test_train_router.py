@@ -8,8 +8,8 @@ from dataclasses import replace
 
 import pytest
 import torch
-
 from helpers.scenes import tiny_scene
+
 from moegs.experts import get_expert_class
 from moegs.moe import RouterConfig, load_moe, train_router
 from moegs.moe.model import MoEGS
@@ -79,7 +79,9 @@ def test_reload_renders_the_same(scene, experts, tmp_path):
     again = load_moe(tmp_path, experts)
     cam = scene.test[0].camera
     with torch.no_grad():
-        torch.testing.assert_close(model.render(cam, scene.background).image, again.render(cam, scene.background).image)
+        torch.testing.assert_close(
+            model.render(cam, scene.background).image, again.render(cam, scene.background).image
+        )
 
 
 def test_mismatched_experts_and_missing_checkpoint_are_named(scene, experts, tmp_path):

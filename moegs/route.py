@@ -1,0 +1,103 @@
+"""``moegs route``: train the experts (stage 1), train a router over them (stage 2), evaluate, draw gates.
+
+    moegs route --experts deformable,grid4d --scene dnerf:mutant --preset quick
+    moegs route --experts ex4dgs,stg,ed3dgs --scene panoptic:basketball --router pixel --out runs/moe
+
+Layout of ``--out`` (default ``runs/route_<scene>_<preset>_s<seed>``)::
+
+    <expert>/            each expert's training run (``moegs compare`` layout: reused, resumed)
+    router_<variant>/    router.safetensors, config.json, metrics.json (MoE and per-expert metrics)
+        gates/           one PNG per test view: GT | MoE | experts | winner map | per-expert gate maps
+        gates/winner_*.png, gate_<expert>_*.png   the colour-coded maps alone
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+
+ROUTER_PRESETS = {"quick": "quick", "paper": "paper"}
+"""Router preset used with each expert preset."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--experts", required=True, help="comma-separated registry names, e.g. deformable,grid4d")
+    p.add_argument("--scene", required=True, help="<dataset>:<scene>, e.g. dnerf:mutant")
+    p.add_argument("--preset", default="quick", help="experts' and router's preset: quick or paper")
+    p.add_argument("--router", default="vapr", help="vapr (volume-aware pixel), pixel or volume")
+    p.add_argument("--router-preset", help="router preset (default: --preset); 'code' = authors' conventions")
+    p.add_argument("--iterations", type=int, help="override the router's iterations")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", help="output folder")
+    p.add_argument("--gate-views", type=int, default=4, help="test views drawn as gate figures (0: none)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress: bool):
+    """Train (or reuse) each expert; returns ``(experts, scene)`` on one scene of one resolution."""
+    from moegs.compare import _frames, run_expert
+    from moegs.experts import get_expert_class
+    from moegs.train.checkpoint import load_expert
+
+    scales = {get_expert_class(n).config_class.from_preset(preset).train.resolution_scale for n in names}
+    if len(scales) != 1:
+        raise ValueError(
+            f"experts {names} train at different resolution scales {sorted(map(str, scales))} with preset "
+            f"{preset!r}; a router blends images of one size"
+        )
+    scenes: dict = {}
+    frames = _frames(scene_name, preset, None)
+    for name in names:
+        run_expert(name, scene_name, preset, out / name, frames, scenes, progress)
+    scene = next(iter(scenes.values()))
+    return [load_expert(out / name, scene)[0] for name in names], scene
+
+
+def write_gate_figures(model, scene, folder: Path, count: int) -> list[Path]:
+    """Gate figures and maps for ``count`` evenly spaced test views; returns the figure paths."""
+    import imageio.v3 as iio
+    import torch
+
+    from moegs.moe.visualize import save_gate_figure, weight_map, winner_map
+    from moegs.train.evaluate import eval_views
+
+    names = [e.name for e in model.experts]
+    paths = []
+    with torch.no_grad():
+        for i, view in enumerate(eval_views(scene.test, count)):
+            out = model.render(view.camera, scene.background)
+            title = f"{model.config.variant} router, {view.key} (t={view.camera.time:.2f})"
+            paths.append(save_gate_figure(folder / f"view_{i:03d}.png", out, view.image(), names, title))
+            iio.imwrite(folder / f"winner_{i:03d}.png", winner_map(out.gates))
+            for k, name in enumerate(names):
+                iio.imwrite(folder / f"gate_{k}_{name}_{i:03d}.png", weight_map(out.gates[k]))
+    return paths
+
+
+def main(args: argparse.Namespace) -> int:
+    from moegs.moe import RouterConfig, load_moe, train_router
+
+    names = [n.strip() for n in args.experts.split(",") if n.strip()]
+    if len(names) < 1:
+        raise ValueError("--experts needs at least one expert name")
+    out = Path(args.out or Path("runs") / f"route_{args.scene.replace(':', '_')}_{args.preset}_s{args.seed}")
+    experts, scene = _experts(names, args.scene, args.preset, out, not args.quiet)
+    config = RouterConfig.from_preset(args.router_preset or ROUTER_PRESETS.get(args.preset, args.preset))
+    config = replace(config, variant=args.router, seed=args.seed)
+    if args.iterations is not None:
+        config = replace(config, iterations=args.iterations)
+    folder = out / f"router_{args.router}"
+    result = train_router(experts, scene, config, folder, progress=not args.quiet)
+    model = load_moe(folder, experts)
+    figures = write_gate_figures(model, scene, folder / "gates", args.gate_views) if args.gate_views else []
+    test = result["test"]
+    label = f" [{scene.stand_in}]" if scene.stand_in else ""
+    print(f"MoE-GS ({args.router} router) on {scene.name}{label}:")
+    for e, share in zip(test["experts"], test["winner_share"], strict=True):
+        scores = f"PSNR {e['psnr']:.2f}  SSIM {e['ssim']:.4f}"
+        print(f"  expert {e['name']:<12} {scores}  wins {100 * share:.0f}% of pixels")
+    print(f"  MoE-GS              PSNR {test['psnr']:.2f}  SSIM {test['ssim']:.4f}  -> {folder}")
+    if figures:
+        print(f"  gate figures: {folder / 'gates'} ({len(figures)} views)")
+    return 0
