@@ -7,7 +7,8 @@ library's MDC (mean L1 reprojection error over ordered view pairs) is averaged o
 Library API this kind calls (until it exists, cells report "not implemented yet: <name>"):
 
 * ``moegs.metrics.mdc.mdc(depths: list[Tensor [H, W]], cameras: list[Camera]) -> float``;
-* ``moegs.moe.lift(model, t) -> GaussianFrame`` (MoE-GS only).
+* ``moegs.moe.compute_responsibilities(model, views, background)`` and ``moegs.moe.lift(model, t) ->
+  GaussianFrame`` (MoE-GS only: gates lifted to Gaussians over all training views, then fused).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ def missing(params: dict) -> list[str]:
     out = [m for m in (module_missing(MDC_API),) if m]
     if "experts" in params:
         out += moe_kind.missing({"experts": params["experts"], "router": params.get("router", "vapr")})
-        out += [m for m in (module_missing("moegs.moe:lift"),) if m]
+        out += [m for m in map(module_missing, ("moegs.moe:lift", "moegs.moe:compute_responsibilities")) if m]
     else:
         out += expert_kind.missing({"expert": params["expert"]})
     return out
@@ -60,9 +61,10 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     scene = ctx.scene(task)
     build_task = artifacts(task)[0]
     if "experts" in task.params:
-        from moegs.moe import lift
+        from moegs.moe import compute_responsibilities, lift
 
         model = moe_kind.load_model(ctx, build_task)
+        compute_responsibilities(model, scene.train, scene.background)
 
         def frame_at(t: float) -> Any:
             return lift(model, t)

@@ -8,11 +8,14 @@ Dynamic Gaussian Splatting").
 
 Modules: ``config`` (RouterConfig, presets, paper vs code conventions), ``splat`` (experts rendered in a
 single pass with per-Gaussian channels), ``routers`` (volume-aware pixel, pixel, volume routers),
-``model`` (MoEGS, checkpoint), ``train`` (stage-2 training and evaluation), ``visualize`` (gate maps).
+``model`` (MoEGS, checkpoint), ``train`` (stage-2 training and evaluation), ``prune`` (gate-aware
+pruning), ``lift`` (gate responsibilities per Gaussian, post-hoc fusion), ``visualize`` (gate maps).
 """
 
 from moegs.moe.config import ROUTERS, RouterConfig
+from moegs.moe.lift import compute_responsibilities, lift
 from moegs.moe.model import MoEGS, load_moe
+from moegs.moe.prune import gate_importance, prune
 from moegs.moe.routers import MoERender, PixelRouter, VolumeAwarePixelRouter, VolumeRouter
 from moegs.moe.train import evaluate_moe, train_router
 
@@ -24,7 +27,11 @@ __all__ = [
     "RouterConfig",
     "VolumeAwarePixelRouter",
     "VolumeRouter",
+    "compute_responsibilities",
     "evaluate_moe",
+    "gate_importance",
+    "lift",
     "load_moe",
+    "prune",
     "train_router",
 ]

@@ -31,6 +31,7 @@ class MoEGS(nn.Module):
         experts: ``K`` trained experts; no parameter of theirs requires grad.
         router: the router of ``config.variant`` (the only trainable part).
         config: the ``RouterConfig``.
+        responsibilities: lifted gate responsibilities per expert ``[N_k]`` (``moegs.moe.lift``), or None.
     """
 
     def __init__(self, experts: Sequence[Expert], config: RouterConfig) -> None:
@@ -41,6 +42,7 @@ class MoEGS(nn.Module):
         self.experts = nn.ModuleList(experts)
         self.experts.requires_grad_(False)
         self.router = build_router(experts, config)
+        self.responsibilities: list[Tensor] | None = None
         self.train(False)
 
     def train(self, mode: bool = True) -> MoEGS:
@@ -81,6 +83,7 @@ class MoEGS(nn.Module):
             "experts": [e.name for e in self.experts],
             "num_gaussians": [e.num_gaussians for e in self.experts],
             "router": dict(self.router.state_dict()),
+            "responsibilities": self.responsibilities,
         }
 
 
@@ -119,6 +122,7 @@ def load_moe(path: str | Path, experts: Sequence[Expert], scene: Scene | None = 
     _check_experts(state, experts, Path(path))
     model = MoEGS(experts, from_dict(RouterConfig, state["config"]))
     model.router.load_state_dict(state["router"])
+    model.responsibilities = state.get("responsibilities")
     return model.eval()
 
 

@@ -90,6 +90,9 @@ def _fake_moe() -> types.ModuleType:
         load_moe=load_moe,
         prune=lambda model, scene, ratio=None: {"ratio": ratio},
         lift=lambda model, t: model.experts[0].frame(t),
+        compute_responsibilities=lambda model, views, background: [
+            torch.ones(e.num_gaussians) for e in model.experts
+        ],
         distill=distill,
     )
     return mod

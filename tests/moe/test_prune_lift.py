@@ -1,0 +1,109 @@
+"""Gate-aware pruning and lifting on a tiny scene: importance is a per-Gaussian gate sensitivity, pruning
+removes exactly the least important rows from experts and router alike, responsibilities are convex
+shares that reproduce by hand, and the fused frame scales opacity by them."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+import torch
+from helpers.scenes import tiny_scene
+
+from moegs.experts import get_expert_class
+from moegs.moe import MoEGS, RouterConfig, compute_responsibilities, gate_importance, lift, prune
+from moegs.render import rasterize
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return tiny_scene(num_frames=2, cameras=3, size=24, num_points=100)
+
+
+def experts(scene, names=("static", "mcmc")):
+    out = []
+    for seed, name in enumerate(names):
+        cls = get_expert_class(name)
+        cfg = cls.config_class.from_preset("quick")
+        out.append(cls.from_scene(scene, replace(cfg, train=replace(cfg.train, seed=seed))).eval())
+    return out
+
+
+def model(scene, variant="vapr", names=("static", "mcmc")) -> MoEGS:
+    m = MoEGS(experts(scene, names), replace(RouterConfig.from_preset("quick"), variant=variant))
+    torch.manual_seed(3)
+    with torch.no_grad():
+        for p in m.router.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    return m
+
+
+@pytest.mark.parametrize("variant", ["vapr", "volume"])
+def test_importance_is_zero_for_gaussians_no_view_sees(scene, variant):
+    m = model(scene, variant)
+    with torch.no_grad():  # push one static Gaussian far behind every camera ring: never splatted
+        m.experts[0].splats["means"][0] = torch.tensor([0.0, 0.0, 50.0])
+    scores = gate_importance(m, scene.train[:3], scene.background)
+    assert [s.shape[0] for s in scores] == [e.num_gaussians for e in m.experts]
+    assert scores[0][0] == 0 and (scores[0] > 0).sum() > 10
+    # mcmc: rows of the model of t=0 only are seen by views at t=0
+    assert (scores[1] > 0).any()
+
+
+def test_ratio_pruning_drops_the_least_important_rows_everywhere(scene):
+    m = model(scene)
+    views = scene.train[:3]
+    scores = gate_importance(m, views, scene.background)
+    before = [e.num_gaussians for e in m.experts]
+    kept_means = (
+        m.experts[0].splats["means"][torch.argsort(scores[0], stable=True)[int(0.55 * before[0]) :]].clone()
+    )
+    report = prune(m, replace(scene, train=views), ratio=0.55)
+    assert report["before"] == before
+    assert report["after"] == [n - int(0.55 * n) for n in before]
+    assert [p.shape[0] for p in m.router.weights.mix] == report["after"]
+    assert [p.shape[0] for p in m.router.weights.time] == report["after"]
+    assert set(map(tuple, m.experts[0].splats["means"].tolist())) == set(map(tuple, kept_means.tolist()))
+    out = m.render(scene.test[0].camera, scene.background)  # still renders
+    assert torch.isfinite(out.image).all()
+
+
+def test_threshold_pruning_and_bad_arguments(scene):
+    m = model(scene)
+    report = prune(m, scene, threshold=float("inf"), max_views=2)
+    assert report["after"] == [0, 0] or sum(report["after"]) == 0
+    with pytest.raises(ValueError, match="ratio must be in"):
+        prune(model(scene), scene, ratio=1.5)
+    with pytest.raises(ValueError, match="no per-Gaussian routing parameters|has none"):
+        prune(model(scene, "pixel"), scene, ratio=0.5)
+
+
+def test_responsibilities_match_a_brute_force_sum(scene):
+    """R for one Gaussian, summed by hand from renders with and without it."""
+    m = model(scene, names=("static", "static"))
+    view = scene.train[1]
+    resp = compute_responsibilities(m, [view], scene.background)
+    assert all(((r >= 0) & (r <= 1)).all() for r in resp)
+    with torch.no_grad():
+        gates = m.render(view.camera, scene.background).gates
+        frame = m.experts[0].frame(view.camera.time)
+        j = int(torch.argmax(rasterize(frame, view.camera, return_stats=True).info["contrib"]))
+        one_hot = torch.zeros(len(frame), 1)
+        one_hot[j] = 1.0
+        contrib = rasterize(frame.with_colors(one_hot), view.camera).image[..., 0]  # T_j alpha_j per pixel
+        expected = (gates[0] * contrib).sum() / contrib.sum()
+    assert resp[0][j] == pytest.approx(float(expected), abs=1e-4)
+
+
+def test_lift_scales_opacity_and_needs_responsibilities(scene):
+    m = model(scene)
+    with pytest.raises(ValueError, match="compute_responsibilities"):
+        lift(m, 0.0)
+    resp = compute_responsibilities(m, scene.train[:3], scene.background)
+    fused = lift(m, 1.0)
+    parts = [e.frame(1.0) for e in m.experts]
+    assert len(fused) == sum(len(p) for p in parts)
+    rows = m.experts[1].frame_rows(1.0)
+    expected = torch.cat([parts[0].opacities * resp[0], parts[1].opacities * resp[1][rows]])
+    torch.testing.assert_close(fused.opacities, expected)
+    assert rasterize(fused, scene.test[0].camera).image.shape == (24, 24, 3)
