@@ -5,7 +5,8 @@ cell, with ``row``, ``column``, ``metric``, ``value``, the ``printed`` text (kee
 e.g. ``"0.930"``), ``unit``, ``higher_is_better`` and ``marked`` (``"best"`` for a bold cell, else
 ``None``). Tables are numbered in the paper's order, ``tab01`` (Table I) .. ``tab19`` (Table XIX).
 These files are the only hand-typed numbers in the project; ``tests/bench/test_paper_tables.py``
-checks them against the LaTeX source.
+checks them against the LaTeX source. ``tables/paper/originals/*.json`` (same schema, plus a ``source``
+citation per value) hold numbers that the experts' own papers publish (``load_original_table``).
 
     >>> from bench.paper import load_paper_table, paper_value
     >>> paper_value("tab03", "MoE-GS (N=3)", "Average", "PSNR")
@@ -28,6 +29,9 @@ _REPO = Path(__file__).resolve().parent.parent
 PAPER_TABLES_DIR = _REPO / "tables" / "paper"
 #: Numbers the paper prints in its text rather than in a table (same schema plus ``source_sentence``).
 PAPER_TEXT_DIR = PAPER_TABLES_DIR / "text"
+#: Numbers the experts' own papers publish (DeformableGS, 3D-GS ...), not the MoE-GS paper: same schema,
+#: plus a ``source`` citation on every value. Not checked against the MoE-GS LaTeX.
+PAPER_ORIGINALS_DIR = PAPER_TABLES_DIR / "originals"
 #: Columns of :meth:`PaperTable.frame`, in order.
 FRAME_COLUMNS = ("row", "column", "metric", "value", "printed", "unit", "higher_is_better", "marked")
 
@@ -72,15 +76,20 @@ class PaperTable:
         if metric is not None:
             _check_key("metric", metric, self.metrics, self.id)
         hits = [
-            v for v in self.values
+            v
+            for v in self.values
             if v["row"] == row and v["column"] == column and (metric is None or v["metric"] == metric)
         ]
         if not hits:
-            raise KeyError(f"{self.id}: no printed value for row={row!r}, column={column!r}, "
-                           f"metric={metric!r} (empty or N/A in the paper; see the table's notes)")
+            raise KeyError(
+                f"{self.id}: no printed value for row={row!r}, column={column!r}, "
+                f"metric={metric!r} (empty or N/A in the paper; see the table's notes)"
+            )
         if len(hits) > 1:
-            raise KeyError(f"{self.id}: row={row!r}, column={column!r} has several metrics "
-                           f"{[h['metric'] for h in hits]}; pass metric=")
+            raise KeyError(
+                f"{self.id}: row={row!r}, column={column!r} has several metrics "
+                f"{[h['metric'] for h in hits]}; pass metric="
+            )
         return hits[0]
 
 
@@ -112,6 +121,21 @@ def load_paper_text(text_id: str) -> PaperTable:
 def load_paper_numbers(source_id: str) -> PaperTable:
     """A table (``tab03``) or an in-text number set (``static_roi``) by id."""
     return load_paper_table(source_id) if source_id in list_paper_tables() else load_paper_text(source_id)
+
+
+def list_original_tables() -> list[str]:
+    """Ids of the experts' own published numbers (``tables/paper/originals/*.json``)."""
+    return sorted(p.stem for p in PAPER_ORIGINALS_DIR.glob("*.json"))
+
+
+def load_original_table(table_id: str) -> PaperTable:
+    """Load ``tables/paper/originals/<table_id>.json``; each value keeps its ``source`` citation."""
+    _check_key("originals id", table_id, list_original_tables(), "tables/paper/originals")
+    data = json.loads((PAPER_ORIGINALS_DIR / f"{table_id}.json").read_text(encoding="utf-8"))
+    missing = [v for v in data["values"] if not v.get("source")]
+    if missing:
+        raise ValueError(f"tables/paper/originals/{table_id}.json: values without a source: {missing}")
+    return PaperTable(**data)
 
 
 def paper_value(table: str | PaperTable, row: str, column: str, metric: str | None = None) -> Any:

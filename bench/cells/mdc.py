@@ -53,8 +53,8 @@ def _cameras(scene: Any, k: int) -> list[Any]:
 
 def run(task: Task, ctx: Any) -> dict[str, Any]:
     import torch
-    from moegs.metrics.mdc import mdc
 
+    from moegs.metrics.mdc import mdc
     from moegs.render import rasterize
     from moegs.train.evaluate import eval_views
 

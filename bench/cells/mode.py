@@ -48,8 +48,8 @@ def deps(task: Task) -> list[Task]:
 
 def build(task: Task, ctx: Any, out: Path) -> dict[str, Any]:
     import torch
-
     from moegs.mode import MoDEConfig, MoDEExpert
+
     from moegs.train.loop import train
 
     scene = ctx.scene(task)

@@ -36,8 +36,19 @@ from bench.paper import FRAME_COLUMNS, list_paper_tables, load_paper_table, pape
 
 ROMAN = "I II III IV V VI VII VIII IX X XI XII XIII XIV XV XVI XVII XVIII XIX XX".split()
 NUMBER = re.compile(r"(?<![\w.])\d+(?:\.\d+)?(?![\w.])")
-METADATA = {"id": str, "label": str, "caption": str, "numeral": str, "datasets": list, "expert_sets": dict,
-            "rows": list, "columns": list, "metrics": list, "notes": str, "values": list}
+METADATA = {
+    "id": str,
+    "label": str,
+    "caption": str,
+    "numeral": str,
+    "datasets": list,
+    "expert_sets": dict,
+    "rows": list,
+    "columns": list,
+    "metrics": list,
+    "notes": str,
+    "values": list,
+}
 VALUE_KEYS = {"row", "column", "metric", "value", "printed", "unit", "higher_is_better", "marked"}
 
 
@@ -80,7 +91,7 @@ def _arg(text: str, at: int) -> tuple[str, int]:
         depth += {"{": 1, "}": -1}.get(text[j], 0)
         if depth == 0:
             return text[at + 1 : j], j + 1
-    raise ValueError(f"unbalanced braces in {text[at:at + 60]!r}")
+    raise ValueError(f"unbalanced braces in {text[at : at + 60]!r}")
 
 
 def _clean(cell: str) -> str:
