@@ -5,7 +5,8 @@ Params: ``student`` (expert name), ``teacher`` (the MoE-GS expert set), ``router
 
 Library API this kind calls (until it exists, cells report "not implemented yet: <name>"):
 
-* ``moegs.moe.DistillConfig.from_preset(name)``: dataclass with ``iterations``, ``weighted``, ``seed``;
+* ``moegs.moe.DistillConfig.from_preset(name)``: dataclass with ``iterations`` (None: the student's
+  own), ``weighted``, ``seed``;
 * ``moegs.moe.distill(student, teacher, scene, config, out_dir, progress=False) -> {"train_seconds"}``,
   writing a checkpoint that ``moegs.train.checkpoint.load_expert`` reads.
 """
@@ -61,7 +62,7 @@ def build(task: Task, ctx: Any, out: Path) -> dict[str, Any]:
         cfg,
         weighted=bool(task.params["weighted"]),
         seed=task.seed,
-        iterations=ctx.preset.steps(cfg.iterations, ctx.preset.distill_steps),
+        iterations=ctx.preset.steps(cfg.iterations or student_cfg.train.iterations, ctx.preset.distill_steps),
     )
     result = distill(student, teacher, scene, cfg, out, progress=ctx.progress)
     return {"train_seconds": result.get("train_seconds")}

@@ -9,10 +9,12 @@ Dynamic Gaussian Splatting").
 Modules: ``config`` (RouterConfig, presets, paper vs code conventions), ``splat`` (experts rendered in a
 single pass with per-Gaussian channels), ``routers`` (volume-aware pixel, pixel, volume routers),
 ``model`` (MoEGS, checkpoint), ``train`` (stage-2 training and evaluation), ``prune`` (gate-aware
-pruning), ``lift`` (gate responsibilities per Gaussian, post-hoc fusion), ``visualize`` (gate maps).
+pruning), ``distill`` (MoE-GS into one expert), ``lift`` (gate responsibilities per Gaussian, post-hoc
+fusion), ``visualize`` (gate maps).
 """
 
 from moegs.moe.config import ROUTERS, RouterConfig
+from moegs.moe.distill import DistillConfig, distill
 from moegs.moe.lift import compute_responsibilities, lift
 from moegs.moe.model import MoEGS, load_moe
 from moegs.moe.prune import gate_importance, prune
@@ -21,6 +23,7 @@ from moegs.moe.train import evaluate_moe, train_router
 
 __all__ = [
     "ROUTERS",
+    "DistillConfig",
     "MoEGS",
     "MoERender",
     "PixelRouter",
@@ -28,6 +31,7 @@ __all__ = [
     "VolumeAwarePixelRouter",
     "VolumeRouter",
     "compute_responsibilities",
+    "distill",
     "evaluate_moe",
     "gate_importance",
     "lift",

@@ -22,13 +22,14 @@ Example::
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import torch
 from tqdm.auto import tqdm
 
-from moegs.data.scene import Scene
+from moegs.data.scene import Scene, View
 from moegs.experts.base import Expert
 from moegs.io import save_checkpoint, to_dict, write_json
 from moegs.train.checkpoint import CHECKPOINT_NAME, read_checkpoint, restore_model, training_state
@@ -37,6 +38,9 @@ from moegs.train.evaluate import eval_views, evaluate, render_view
 from moegs.train.losses import photometric
 from moegs.train.optim import Optimizers
 from moegs.train.sampler import ViewSampler
+
+ViewLoss = Callable[[View, torch.Tensor, torch.Tensor, float], torch.Tensor]
+"""``(view, rgb [H, W, 3], target [H, W, 3], lambda_dssim) -> loss`` (see ``train(loss=...)``)."""
 
 
 class NonFiniteError(FloatingPointError):
@@ -60,8 +64,9 @@ def _check_finite(step: int, what: str, tensors: dict[str, torch.Tensor | None],
 class _Run:
     """Mutable training state of one call to :func:`train`."""
 
-    def __init__(self, expert: Expert, scene: Scene, config: TrainConfig) -> None:
+    def __init__(self, expert: Expert, scene: Scene, config: TrainConfig, loss: ViewLoss | None) -> None:
         self.expert, self.scene, self.config = expert, scene, config
+        self.loss = loss
         self.strategy = expert.strategy()
         self.optimizers = Optimizers(expert.param_groups())
         white = bool((scene.background >= 1.0).all())
@@ -134,7 +139,12 @@ class _Run:
                     f"step {step}: view {view.key}: {err}; training stopped. {self.last_good}"
                 ) from err
             target = view.image()
-            view_loss = photometric(rgb, target, config.lambda_dssim) + expert.regularization(step, frame)
+            data_loss = (
+                photometric(rgb, target, config.lambda_dssim)
+                if self.loss is None
+                else self.loss(view, rgb, target, config.lambda_dssim)
+            )
+            view_loss = data_loss + expert.regularization(step, frame)
             extra = expert.observe(step, view, rgb, target, out)
             if extra is not None:
                 view_loss = view_loss + extra
@@ -174,6 +184,7 @@ def train(
     resume: bool = True,
     progress: bool = True,
     stop_after: int | None = None,
+    loss: ViewLoss | None = None,
 ) -> dict[str, Any]:
     """Train ``expert`` on ``scene`` and evaluate it on the test views.
 
@@ -188,6 +199,8 @@ def train(
         progress: show a tqdm bar.
         stop_after: stop (with a checkpoint) after this iteration, as if interrupted; schedules still
             run to ``config.iterations``.
+        loss: ``loss(view, rgb, target, lambda_dssim) -> 0-dim`` replacing the photometric loss of each
+            view (distillation from MoE-GS); the expert's regularisers are still added.
 
     Returns:
         ``{"expert", "scene", "stand_in", "completed", "step", "iterations", "num_gaussians",
@@ -200,7 +213,7 @@ def train(
     config = config or expert.config.train
     out = Path(out_dir) if out_dir is not None else None
     ckpt = out / CHECKPOINT_NAME if out is not None else None
-    run = _Run(expert, scene, config)
+    run = _Run(expert, scene, config, loss)
     torch.manual_seed(config.seed)
     resumed_from = None
     if resume and ckpt is not None and ckpt.is_file():

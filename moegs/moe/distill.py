@@ -1,0 +1,124 @@
+"""Distillation of MoE-GS into one expert (paper Sec. "Practical Efficiency Design" (iii)).
+
+The student ``E_k`` (one of the teacher's experts, trained again from scratch with its own schedule and
+the one training loop) replaces its photometric loss by::
+
+    L_k^KD = lambda L(G'_k I_Ek, G'_k I_GT) + (1 - lambda) L((1 - G'_k) I_Ek, (1 - G'_k) I_MoE)
+
+with ``L`` = the student's own L1 + D-SSIM mix, ``G'_k`` the teacher's gate of expert ``k`` and ``I_MoE``
+the teacher's image ("Distilled (Ours)"). ``weighted=False`` drops the gates: ``lambda L(I_Ek, I_GT) +
+(1 - lambda) L(I_Ek, I_MoE)`` ("w/o Weight", paper Table XV). The paper gives no lambda (the authors'
+code has no distillation); 0.5 is our default. Teacher outputs are rendered once per training view and
+kept in memory.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from moegs.data.scene import Scene, View
+from moegs.experts.base import Expert
+from moegs.moe.model import MoEGS
+from moegs.train.losses import photometric
+
+
+@dataclass
+class DistillConfig:
+    """Settings of distillation into one expert."""
+
+    iterations: int | None = None
+    """Student iterations; None = the student's own preset."""
+    weighted: bool = True
+    """Routing-weighted KD loss (paper's) or plain GT + MoE supervision ("w/o Weight")."""
+    kd_lambda: float = 0.5
+    """Balance of ground truth vs MoE supervision (the paper gives no value)."""
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.kd_lambda <= 1.0:
+            raise ValueError(f"DistillConfig.kd_lambda must be in [0, 1], got {self.kd_lambda}")
+
+    @classmethod
+    def presets(cls) -> dict[str, Callable[[], DistillConfig]]:
+        return {"quick": cls, "paper": cls}
+
+    @classmethod
+    def from_preset(cls, name: str) -> DistillConfig:
+        presets = cls.presets()
+        if name not in presets:
+            raise ValueError(f"unknown distillation preset {name!r}; valid presets: {', '.join(presets)}")
+        return presets[name]()
+
+
+def kd_loss(
+    rgb: Tensor, target: Tensor, moe_image: Tensor, gate: Tensor | None, kd_lambda: float, lambda_dssim: float
+) -> Tensor:
+    """``L_k^KD`` for one view; ``gate [H, W]`` is G'_k (None: the unweighted variant)."""
+    if gate is None:
+        gt_term = photometric(rgb, target, lambda_dssim)
+        moe_term = photometric(rgb, moe_image, lambda_dssim)
+    else:
+        g = gate[..., None]
+        gt_term = photometric(g * rgb, g * target, lambda_dssim)
+        moe_term = photometric((1 - g) * rgb, (1 - g) * moe_image, lambda_dssim)
+    return kd_lambda * gt_term + (1.0 - kd_lambda) * moe_term
+
+
+class TeacherCache:
+    """The teacher's image and the student's gate per training view, rendered on first use."""
+
+    def __init__(self, teacher: MoEGS, index: int, background: Tensor | None) -> None:
+        self.teacher, self.index, self.background = teacher.eval(), index, background
+        self.outputs: dict[str, tuple[Tensor, Tensor]] = {}
+
+    def __call__(self, view: View) -> tuple[Tensor, Tensor]:
+        if view.key not in self.outputs:
+            with torch.no_grad():
+                out = self.teacher.render(view.camera, self.background)
+            self.outputs[view.key] = (out.image, out.gates[self.index])
+        return self.outputs[view.key]
+
+
+def student_index(student: Expert, teacher: MoEGS) -> int:
+    """Position of the student's method among the teacher's experts (ValueError when absent)."""
+    names = [e.name for e in teacher.experts]
+    if student.name not in names:
+        raise ValueError(f"distillation student {student.name!r} is not one of the teacher's experts {names}")
+    return names.index(student.name)
+
+
+def distill(
+    student: Expert,
+    teacher: MoEGS,
+    scene: Scene,
+    config: DistillConfig | None = None,
+    out_dir: str | Path | None = None,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Train ``student`` (freshly built with ``from_scene``) under the teacher's supervision.
+
+    Returns the training loop's result (``moegs.train.loop.train``); ``out_dir`` holds a checkpoint that
+    ``moegs.train.checkpoint.load_expert`` reads.
+    """
+    from moegs.train.loop import train
+
+    config = config or DistillConfig()
+    teacher_of = TeacherCache(teacher, student_index(student, teacher), scene.background)
+
+    def loss(view: View, rgb: Tensor, target: Tensor, lambda_dssim: float) -> Tensor:
+        moe_image, gate = teacher_of(view)
+        return kd_loss(
+            rgb, target, moe_image, gate if config.weighted else None, config.kd_lambda, lambda_dssim
+        )
+
+    train_config = student.config.train
+    overrides: dict[str, Any] = {"seed": config.seed}
+    if config.iterations is not None:
+        overrides["iterations"] = config.iterations
+    return train(student, scene, replace(train_config, **overrides), out_dir, progress=progress, loss=loss)
