@@ -127,7 +127,11 @@ def load_moe(path: str | Path, experts: Sequence[Expert], scene: Scene | None = 
 
 
 @torch.no_grad()
-def winner_shares(gates: Tensor) -> list[float]:
-    """Fraction of pixels where each expert has the largest gate, ``K`` floats."""
+def winner_shares(gates: Tensor, margin: float = 1e-3) -> list[float]:
+    """Fraction of pixels where each expert's gate is the largest and above the uniform ``1/K`` by
+    ``margin`` (pixels no expert covers get equal logits and count for nobody), ``K`` floats."""
     k = gates.shape[0]
-    return torch.bincount(gates.argmax(0).flatten(), minlength=k).div(gates[0].numel()).tolist()
+    top, winner = gates.max(0)
+    decided = top > 1.0 / k + margin
+    counts = torch.bincount(winner[decided].flatten(), minlength=k)
+    return counts.div(gates[0].numel()).tolist()

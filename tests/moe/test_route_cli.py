@@ -35,3 +35,10 @@ def test_route_rejects_unknown_router_and_expert(capsys, tmp_path):
 def test_route_requires_experts(argv):
     with pytest.raises(SystemExit):
         main(argv)
+
+
+def test_winner_share_ignores_uniform_pixels():
+    from moegs.moe.model import winner_shares
+
+    gates = torch.tensor([[[0.5, 0.9, 0.2, 0.5]], [[0.5, 0.1, 0.8, 0.5]]])
+    assert winner_shares(gates) == [0.25, 0.25]
