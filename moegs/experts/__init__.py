@@ -58,6 +58,11 @@ _REGISTRY: dict[str, ExpertSpec] = {
             "Spacetime Gaussians: polynomial motion, temporal RBF opacity, feature splatting",
         ),
         ExpertSpec(
+            "mode",
+            "moegs.mode:MoDEExpert",
+            "MoDE: canonical deformation experts on shared Gaussians, weight-spline top-k gating",
+        ),
+        ExpertSpec(
             "ex4dgs",
             "moegs.experts.ex4dgs:Ex4DGSExpert",
             "Ex4DGS: static drift + keyframed dynamic Gaussians, progressive training",

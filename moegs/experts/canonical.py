@@ -7,12 +7,16 @@ canonical Gaussians are rendered as they are.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import torch
 from torch import Tensor, nn
 
+from moegs.camera import Camera
 from moegs.data.scene import Scene
 from moegs.experts.gaussian_params import init_splats
 from moegs.experts.static import StaticConfig, StaticExpert, scene_points, thin_points
+from moegs.gaussians import GaussianFrame
 
 QUICK_ITERATIONS = 600  # quick presets share the static baseline's budget (StaticConfig.quick)
 QUICK_STATIC_ITERATIONS = 150  # quick: the 3000-iteration static phase -> a quarter of the short run
@@ -42,7 +46,15 @@ class DeformingExpert(StaticExpert):
         self.step = step
         return super().on_step(step)
 
-    def time_column(self, t: float) -> Tensor:
-        """``[N, 1]`` filled with ``t``, on the Gaussians' device."""
-        means = self.splats["means"]
-        return torch.full((means.shape[0], 1), float(t), dtype=means.dtype, device=means.device)
+    def time_column(self, t: float, like: Tensor | None = None) -> Tensor:
+        """``[N, 1]`` filled with ``t`` for the ``N`` rows of ``like`` (default: the canonical means)."""
+        like = self.splats["means"] if like is None else like
+        return torch.full((like.shape[0], 1), float(t), dtype=like.dtype, device=like.device)
+
+    def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
+        return self.deform(self.splats, t, camera)
+
+    def deform(self, splats: Mapping[str, Tensor], t: float, camera: Camera | None = None) -> GaussianFrame:
+        """The activated Gaussians at ``t`` of the canonical parameters ``splats`` (this expert's own, or
+        those MoDE shares between deformation experts) under this expert's deformation field."""
+        raise NotImplementedError

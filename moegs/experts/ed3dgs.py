@@ -26,7 +26,7 @@ Sources: ``JeongminB/E-D3DGS`` @ a68543e (``scene/deformation.py``, ``scene/gaus
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import torch
@@ -485,7 +485,11 @@ class ED3DGSExpert(Expert):
         return {"means": a, "quats": a, "scales": a * late, "opacities": a * late, "sh": late}
 
     def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
-        s, f = self.splats, self.fields
+        return self.deform(self.splats, t, camera)
+
+    def deform(self, splats: Mapping[str, Tensor], t: float, camera: Camera | None = None) -> GaussianFrame:
+        """The activated Gaussians at ``t`` of the canonical parameters ``splats`` (with ``embedding``)."""
+        s, f = splats, self.fields
         time = t + f.time_offset(camera, self.training)
         coef = self.coefficients()
         raw = {

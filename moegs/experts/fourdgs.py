@@ -21,7 +21,7 @@ heads of switched-off outputs (``no_do`` / ``no_dshs``) are not built, so they h
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 
 import torch
@@ -341,11 +341,11 @@ class FourDGSExpert(DeformingExpert):
         super().on_step(step)
         return step == self.config.coarse_iterations + 1  # fine stage: fresh optimisers
 
-    def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
+    def deform(self, splats: Mapping[str, Tensor], t: float, camera: Camera | None = None) -> GaussianFrame:
+        s = splats
         if not self.deforming:
-            return activate(self.splats, self.active_sh_degree)
-        s = self.splats
-        d = self.fields(s["means"], self.time_column(t))
+            return activate(s, self.active_sh_degree)
+        d = self.fields(s["means"], self.time_column(t, s["means"]))
         overrides = {
             "means": s["means"] + d["dx"],
             "scales": torch.exp(s["scales"] + d["ds"]),

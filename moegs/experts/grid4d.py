@@ -18,7 +18,7 @@ Facts from ``JiaweiXu8/Grid4D`` (``scene/network.py``, ``scene/deform_model.py``
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import torch
@@ -276,18 +276,18 @@ class Grid4DExpert(DeformingExpert):
     def deforming(self) -> bool:
         return self.step >= self.config.warm_up
 
-    def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
+    def deform(self, splats: Mapping[str, Tensor], t: float, camera: Camera | None = None) -> GaussianFrame:
         if not self.deforming:
-            return activate(self.splats, self.active_sh_degree)
+            return activate(splats, self.active_sh_degree)
         if self.training and torch.is_grad_enabled():
             self._last_time = float(t)
-        d = self.fields(self.splats["means"].detach(), self.time_column(t))
+        d = self.fields(splats["means"].detach(), self.time_column(t, splats["means"]))
         return activate(
-            self.splats,
+            splats,
             self.active_sh_degree,
-            means=rigid_warp(self.splats["means"], d["warp"]),
-            scales=torch.exp(self.splats["scales"]) + d["dscale"],
-            quats=nn.functional.normalize(self.splats["quats"], dim=-1) + d["drot"],
+            means=rigid_warp(splats["means"], d["warp"]),
+            scales=torch.exp(splats["scales"]) + d["dscale"],
+            quats=nn.functional.normalize(splats["quats"], dim=-1) + d["drot"],
         )
 
     def regularization(self, step: int, frame: GaussianFrame | None = None) -> Tensor:

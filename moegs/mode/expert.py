@@ -1,0 +1,236 @@
+"""``MoDEExpert``: several canonical deformation experts on ONE shared set of canonical Gaussians, mixed
+per Gaussian by a temporal weight spline with top-k gating (paper Sec. "Mixture of Deformation Experts").
+
+    config = MoDEConfig.from_preset("quick")                  # experts=("fourdgs", "ed3dgs")
+    mode = MoDEExpert.from_scene(scene, config)               # an Expert: the one training loop trains it
+
+Per frame at time t, for Gaussian i with gates ``G_i(t)`` (``moegs.mode.gating``)::
+
+    A_e(t) = expert_e.deform(canonical, t)      e = 0 is the base: its gradients reach the canonical set,
+                                                the others see a detached copy (paper: gradient blocking)
+    means, quats, scales = sum_e G_ie(t) A_e(t) (quats renormalised); opacity and SH from the base
+
+Paper vs authors' code (``specs/official_moegs.md`` section 6), each a config field, paper as default:
+mixed attributes (paper: the deformed position, rotation and scale; code: position and rotation only),
+one gate for all mixed attributes (paper) or one per attribute (code), std-normalisation of the scores
+before the softmax (code only), control points (code configs: 3). Regularisers: the base's only (the
+code adds no Grid4D or E-D3DGS term). Training: the base's pipeline (stages, densification, loss).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import torch
+from torch import Tensor, nn
+
+from moegs.camera import Camera
+from moegs.data.scene import Scene, View
+from moegs.experts import get_expert_class
+from moegs.experts.base import Expert, ExpertConfig, ParamGroup
+from moegs.gaussians import GaussianFrame
+from moegs.mode.gating import top_k_gates, warmup_scores, weight_spline
+from moegs.train.config import TrainConfig
+from moegs.train.strategy.base import Strategy
+
+CANONICAL_EXPERTS = ("fourdgs", "grid4d", "ed3dgs")
+"""Experts with ``deform(splats, t, camera)`` on given canonical parameters (MoDE's candidates)."""
+MIXABLE = ("means", "quats", "scales")
+GATE_KEY = "gate_control"
+"""Per-Gaussian spline control weights ``[N, N_w, G]`` in the shared ``splats``."""
+
+
+@dataclass
+class MoDEConfig(ExpertConfig):
+    """MoDE settings; ``train`` drives the whole model (the base expert's pipeline)."""
+
+    experts: tuple[str, ...] = ("fourdgs", "ed3dgs")
+    """Deformation experts, the base (canonical-space owner) first."""
+    member_preset: str = "quick"
+    """Preset of every member expert's own config (its ``train`` is replaced by this config's)."""
+    control_points: int = 3
+    """Spline control points N_w (code default 18; the MoDE configs use 3, coffee_martini 5)."""
+    top_k: int = 2
+    """Experts kept per Gaussian (code default 2)."""
+    mixed: tuple[str, ...] = MIXABLE
+    """Deformed attributes mixed across experts: paper ``means, quats, scales``; code ``means, quats``."""
+    gate_per_attribute: bool = False
+    """One gate per mixed attribute (code: spline channels [0:E] position, [E:2E] rotation) instead of one."""
+    std_normalize: bool = False
+    """Divide scores by their std across experts before the softmax (code only)."""
+    warmup_iterations: int = 3000
+    """Random gating for this many iterations after the base starts deforming (code 3000)."""
+    control_init_std: float = 0.01
+    """Control weights start at ``control_init_std * randn`` (code)."""
+    gate_lr: float = 0.005
+    """Control-weight Adam rate, decayed exponentially (code ``weight_movelr``)."""
+    gate_lr_final: float = 0.0005
+    gate_lr_max_steps: int = 20_000
+
+    def __post_init__(self) -> None:
+        self.experts = tuple(self.experts)
+        self.mixed = tuple(self.mixed)
+        bad = [e for e in self.experts if e not in CANONICAL_EXPERTS]
+        if len(self.experts) < 2 or bad:
+            raise ValueError(
+                f"MoDEConfig.experts needs >= 2 of {CANONICAL_EXPERTS} (base first), got {list(self.experts)}"
+            )
+        if not set(self.mixed) <= set(MIXABLE) or not self.mixed:
+            raise ValueError(f"MoDEConfig.mixed must be a non-empty subset of {MIXABLE}, got {self.mixed}")
+        if not 1 <= self.top_k <= len(self.experts):
+            raise ValueError(f"MoDEConfig.top_k must be in 1..{len(self.experts)}, got {self.top_k}")
+        if self.control_points < 2:
+            raise ValueError(f"MoDEConfig.control_points must be >= 2, got {self.control_points}")
+
+    @property
+    def num_gates(self) -> int:
+        return len(self.experts) * (len(self.mixed) if self.gate_per_attribute else 1)
+
+    @classmethod
+    def presets(cls) -> dict[str, Callable[[], MoDEConfig]]:
+        """``quick`` (CPU minutes: the members' quick presets, warm-up scaled with the run), ``paper``
+        (4DGaussians pipeline of the code: coarse 3000 + fine 30000 iterations, batch 4), ``code`` (paper
+        scale with the code's conventions: position + rotation, one gate each, std-normalised)."""
+
+        def base_train(preset: str) -> TrainConfig:
+            return get_expert_class("fourdgs").config_class.from_preset(preset).train
+
+        def paper() -> MoDEConfig:
+            return cls(
+                member_preset="paper",
+                train=replace(base_train("paper"), iterations=3000 + 30_000, batch_size=4),
+            )
+
+        return {
+            "quick": lambda: cls(
+                warmup_iterations=100,  # quick: 3000 of 30000 fine steps -> 100 of 450
+                gate_lr_max_steps=600,  # quick: the decay spans the short run
+                train=base_train("quick"),
+            ),
+            "paper": paper,
+            "code": lambda: replace(
+                paper(), mixed=("means", "quats"), gate_per_attribute=True, std_normalize=True
+            ),
+        }
+
+
+def _member(name: str, scene: Scene, config: MoDEConfig) -> Expert:
+    cls = get_expert_class(name)
+    member_config = cls.config_class.from_preset(config.member_preset)
+    return cls.from_scene(scene, replace(member_config, train=config.train))
+
+
+class MoDEExpert(Expert):
+    """The base expert, the other deformation experts and the shared canonical ``splats`` (which also
+    hold every member's per-Gaussian extras and the gate control weights)."""
+
+    name = "mode"
+    config_class = MoDEConfig
+
+    def __init__(self, config: MoDEConfig, members: list[Expert], splats: nn.ParameterDict) -> None:
+        super().__init__(config, splats, nn.ModuleList(members))
+        self.canonical_keys = tuple(k for k in members[0].splats if k != GATE_KEY)
+        self.register_buffer("deform_from", torch.tensor(-1))  # first step at which the base deforms
+        self.step = 0
+        for m in members:
+            m.splats = splats  # one ParameterDict: densification keeps everyone's rows in step
+
+    @classmethod
+    def from_scene(cls, scene: Scene, config: MoDEConfig) -> MoDEExpert:
+        members = [_member(name, scene, config) for name in config.experts]
+        shared = dict(members[0].splats.items())
+        n = shared["means"].shape[0]
+        for m in members[1:]:  # per-Gaussian extras (E-D3DGS embeddings), sized to the base's points
+            for key, value in m.splats.items():
+                if key not in shared:
+                    shape = (n, *value.shape[1:])
+                    shared[key] = nn.Parameter(value.new_zeros(shape), requires_grad=value.requires_grad)
+        generator = torch.Generator().manual_seed(config.train.seed)
+        control = config.control_init_std * torch.randn(
+            n, config.control_points, config.num_gates, generator=generator
+        )
+        shared[GATE_KEY] = nn.Parameter(control)
+        return cls(config, members, nn.ParameterDict(shared))
+
+    @property
+    def members(self) -> list[Expert]:
+        return list(self.fields)
+
+    @property
+    def base(self) -> Expert:
+        return self.fields[0]
+
+    # -- gating ------------------------------------------------------------------------------------------
+    def gates(self, t: float) -> Tensor:
+        """``[N, G]`` gates at ``t``: random scores during the warm-up while training, the spline after."""
+        c, control = self.config, self.splats[GATE_KEY]
+        e = len(c.experts)
+        groups = c.num_gates // e
+        start = int(self.deform_from)
+        warm = self.training and (start < 0 or self.step < start + c.warmup_iterations)
+        if warm:
+            scores = warmup_scores(control.shape[0] * groups, e, control).view(-1, c.num_gates)
+        else:
+            scores = weight_spline(control, t)
+        parts = scores.view(-1, groups, e)
+        return top_k_gates(parts, c.top_k, c.std_normalize).view(-1, c.num_gates)
+
+    # -- frames ------------------------------------------------------------------------------------------
+    def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
+        base_frame = self.base.deform(self.splats, t, camera)
+        if not getattr(self.base, "deforming", True):
+            return base_frame  # the base's static (coarse) stage: no deformation at all
+        detached = {k: (v.detach() if k in self.canonical_keys else v) for k, v in self.splats.items()}
+        frames = [base_frame] + [m.deform(detached, t, camera) for m in self.members[1:]]
+        gates = self.gates(t)
+        e = len(frames)
+        mixed = {}
+        for a, attr in enumerate(self.config.mixed):
+            g = gates[:, a * e : (a + 1) * e] if self.config.gate_per_attribute else gates
+            value = sum(g[:, i : i + 1] * getattr(f, attr) for i, f in enumerate(frames))
+            mixed[attr] = nn.functional.normalize(value, dim=-1) if attr == "quats" else value
+        return replace(base_frame, **mixed)
+
+    # -- training hooks ------------------------------------------------------------------------------------
+    def on_step(self, step: int) -> bool:
+        self.step = step
+        changed = [m.on_step(step) for m in self.members]
+        if int(self.deform_from) < 0 and getattr(self.base, "deforming", True):
+            self.deform_from.fill_(step)
+        return any(changed)
+
+    def param_groups(self) -> list[ParamGroup]:
+        """The base's groups, each other member's groups without the canonical tensors (renamed
+        ``<member>.<group>``), and the gate control weights."""
+        groups = list(self.base.param_groups())
+        owned = {id(p) for g in groups for p in g.params}
+        for m in self.members[1:]:
+            for g in m.param_groups():
+                params = [p for p in g.params if id(p) not in owned]
+                if params:
+                    groups.append(replace(g, name=f"{m.name}.{g.name}", params=params))
+                    owned.update(id(p) for p in params)
+        c = self.config
+        groups.append(
+            ParamGroup(
+                GATE_KEY,
+                [self.splats[GATE_KEY]],
+                c.gate_lr,
+                lr_final=c.gate_lr_final,
+                max_steps=c.gate_lr_max_steps,
+            )
+        )
+        return groups
+
+    def regularization(self, step: int, frame: GaussianFrame | None = None) -> Tensor:
+        return self.base.regularization(step, frame)
+
+    def strategy(self) -> Strategy | None:
+        return self.base.strategy()
+
+    def select_views(self, step: int, views: list[View], batch_size: int, generator: torch.Generator):
+        return self.base.select_views(step, views, batch_size, generator)
+
+    def view_groups(self, views: list[View]) -> list[int] | None:
+        return self.base.view_groups(views)
