@@ -297,7 +297,7 @@ def compare(
     from moegs.experts import get_spec, list_experts
     from moegs.io import write_json
 
-    names = [s.name for s in list_experts()] if experts == ["all"] else experts
+    names = [s.name for s in list_experts() if not s.composite] if experts == ["all"] else experts
     for name in names:
         get_spec(name)  # unknown names fail before any training
     window = _frames(scene, preset, frames)

@@ -17,6 +17,8 @@ class ExpertSpec:
     target: str
     """``"package.module:Class"`` of the ``Expert`` subclass."""
     description: str
+    composite: bool = False
+    """Built from other experts (MoDE): left out of "all experts" lists such as ``moegs compare``."""
 
 
 _REGISTRY: dict[str, ExpertSpec] = {
@@ -61,6 +63,7 @@ _REGISTRY: dict[str, ExpertSpec] = {
             "mode",
             "moegs.mode:MoDEExpert",
             "MoDE: canonical deformation experts on shared Gaussians, weight-spline top-k gating",
+            composite=True,
         ),
         ExpertSpec(
             "ex4dgs",
