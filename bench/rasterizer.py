@@ -1,0 +1,141 @@
+"""Rasterizer benchmark table: run the pytest-benchmark suite once and report speed-ups and memory.
+
+    python -m bench.rasterizer                       # run tests/benchmarks, write runs/rasterizer/*.json|md
+    python -m bench.rasterizer --json saved.json     # only build the table from a saved run
+    python -m bench.rasterizer --readme README.md    # also rewrite README (results:rasterizer section)
+
+Speeds are ratios inside ONE run (medians of the same machine and load), checked against the targets
+of the core-engine issue: compiled CPU fwd+bwd >= 3x the torch reference at 5k/128² and 20k/256²,
+single-pass K=3 >= 1.5x three separate renders (the paper reports 1.67x on a GPU), compiled-path peak
+memory < 500 MB at 100k/512².
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+from bench.keys import REPO
+
+SPEEDUP_TARGET = 3.0
+SINGLE_PASS_TARGET = 1.5
+MEMORY_TARGET_MB = 500.0
+
+
+def run_suite(json_path: Path) -> None:
+    """Run the benchmark suite (``tests/benchmarks``) with its results saved as ``json_path``."""
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    cmd = [
+        sys.executable,
+        "-m",
+        "pytest",
+        str(REPO / "tests" / "benchmarks"),
+        "-m",
+        "benchmark",
+        "-q",
+        "--benchmark-enable",
+        "--benchmark-only",
+        f"--benchmark-json={json_path}",
+    ]
+    subprocess.run(cmd, check=True, cwd=REPO)
+
+
+def _cases(data: dict) -> dict[tuple, dict]:
+    """``(test, n, res, backward, backend, single_pass) -> {"median_ms", "peak_mb"}``."""
+    out = {}
+    for b in data["benchmarks"]:
+        info = b["extra_info"]
+        test = b["name"].split("[")[0]
+        key = (test, info["n"], info["res"], info["backward"], info["backend"], info.get("single_pass", True))
+        peak = info.get("peak_rss_mb")
+        extra = None if peak is None else peak - info.get("rss_before_mb", 0.0)
+        out[key] = {"median_ms": 1000 * b["stats"]["median"], "peak_mb": extra}
+    return out
+
+
+def markdown(data: dict) -> str:
+    """The README table of a pytest-benchmark JSON run (see module docstring)."""
+    cases = _cases(data)
+
+    def ms(value):
+        return "–" if value is None else f"{value:.1f}"
+
+    lines = [
+        "| case | torch reference (ms) | compiled CPU (ms) | speed-up | CPU render memory (MB) | target |",
+        "|---|---|---|---|---|---|",
+    ]
+    sizes = sorted({(k[1], k[2]) for k in cases if k[0] == "test_rasterize"})
+    for n, res in sizes:
+        for backward in (False, True):
+            ref = cases.get(("test_rasterize", n, res, backward, "torch", True))
+            cpu = cases.get(("test_rasterize", n, res, backward, "cpu", True))
+            if cpu is None:
+                continue
+            speed = None if ref is None else ref["median_ms"] / cpu["median_ms"]
+            target = ""
+            if backward and n <= 20_000:
+                target = (
+                    f"≥ {SPEEDUP_TARGET:.0f}×: {'met' if speed and speed >= SPEEDUP_TARGET else 'MISSED'}"
+                )
+            if n >= 100_000 and cpu["peak_mb"] is not None:
+                target = (
+                    f"< {MEMORY_TARGET_MB:.0f} MB: {'met' if cpu['peak_mb'] < MEMORY_TARGET_MB else 'MISSED'}"
+                )
+            name = f"{n // 1000}k Gaussians, {res}², {'fwd+bwd' if backward else 'fwd'}"
+            lines.append(
+                f"| {name} | {ms(ref and ref['median_ms'])} | {ms(cpu['median_ms'])} | "
+                f"{'–' if speed is None else f'{speed:.1f}×'} | {ms(cpu['peak_mb'])} | {target} |"
+            )
+    single = cases.get(("test_three_experts", 5000, 128, True, "cpu", True))
+    separate = cases.get(("test_three_experts", 5000, 128, True, "cpu", False))
+    if single and separate:
+        speed = separate["median_ms"] / single["median_ms"]
+        verdict = "met" if speed >= SINGLE_PASS_TARGET else "MISSED"
+        lines += [
+            "",
+            "| K = 3 experts, 5k Gaussians each, 128², fwd+bwd, compiled CPU | median (ms) |",
+            "|---|---|",
+            f"| three separate `rasterize` calls | {ms(separate['median_ms'])} |",
+            f"| one `rasterize_multi` (single pass) | {ms(single['median_ms'])} |",
+            f"| speed-up | {speed:.2f}× (target ≥ {SINGLE_PASS_TARGET}×: {verdict}; paper: 1.67× on a GPU) |",
+        ]
+    machine = data.get("machine_info", {})
+    cpu_name = machine.get("cpu", {}).get("brand_raw") or platform.processor() or machine.get("machine", "?")
+    lines += [
+        "",
+        f"Medians of one `python -m bench.rasterizer` run on {cpu_name} ({data.get('datetime', '?')[:10]}); "
+        "render memory = peak RSS of one render in a fresh process minus its RSS before rendering.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m bench.rasterizer", description=__doc__.split("\n\n")[0])
+    p.add_argument("--json", type=Path, help="build the table from this saved pytest-benchmark JSON")
+    p.add_argument("--out", type=Path, default=REPO / "runs" / "rasterizer", help="output folder")
+    p.add_argument("--readme", type=Path, help="rewrite this README's results:rasterizer section")
+    args = p.parse_args(argv)
+    json_path = args.json
+    if json_path is None:
+        json_path = args.out / "benchmark.json"
+        run_suite(json_path)
+    if not json_path.is_file():
+        print(f"error: no benchmark JSON at {json_path}", file=sys.stderr)
+        return 2
+    table = markdown(json.loads(json_path.read_text()))
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "table.md").write_text(table)
+    print(table)
+    if args.readme:
+        from moegs.compare import update_readme
+
+        update_readme(args.readme, "rasterizer", table)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,34 @@
+"""The README rasterizer table is built from a pytest-benchmark JSON: ratios, memory, target verdicts."""
+
+from __future__ import annotations
+
+from bench.rasterizer import markdown
+
+
+def bench(test, n, res, backward, backend, median_s, peak=None, single_pass=True):
+    info = {"n": n, "res": res, "backward": backward, "backend": backend, "single_pass": single_pass}
+    if peak is not None:
+        info.update(rss_before_mb=100.0, peak_rss_mb=100.0 + peak)
+    return {"name": f"{test}[x]", "extra_info": info, "stats": {"median": median_s}}
+
+
+def test_table_reports_ratios_memory_and_verdicts():
+    data = {
+        "datetime": "2026-11-23T10:00:00",
+        "machine_info": {"cpu": {"brand_raw": "Test CPU"}},
+        "benchmarks": [
+            bench("test_rasterize", 5000, 128, True, "torch", 0.40),
+            bench("test_rasterize", 5000, 128, True, "cpu", 0.05, peak=20.0),
+            bench("test_rasterize", 20000, 256, True, "torch", 1.0),
+            bench("test_rasterize", 20000, 256, True, "cpu", 0.5, peak=40.0),
+            bench("test_rasterize", 100000, 512, False, "cpu", 0.9, peak=650.0),
+            bench("test_three_experts", 5000, 128, True, "cpu", 0.06, single_pass=True),
+            bench("test_three_experts", 5000, 128, True, "cpu", 0.12, single_pass=False),
+        ],
+    }
+    text = markdown(data)
+    assert "| 5k Gaussians, 128², fwd+bwd | 400.0 | 50.0 | 8.0× | 20.0 | ≥ 3×: met |" in text
+    assert "| 20k Gaussians, 256², fwd+bwd | 1000.0 | 500.0 | 2.0× | 40.0 | ≥ 3×: MISSED |" in text
+    assert "| 100k Gaussians, 512², fwd | – | 900.0 | – | 650.0 | < 500 MB: MISSED |" in text
+    assert "2.00× (target ≥ 1.5×: met" in text
+    assert "Test CPU (2026-11-23)" in text
