@@ -24,6 +24,7 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.gaussians import GaussianFrame
+from moegs.io.config import Presets
 from moegs.train.config import TrainConfig
 
 if TYPE_CHECKING:
@@ -57,7 +58,7 @@ class ParamGroup:
 
 
 @dataclass
-class ExpertConfig:
+class ExpertConfig(Presets):
     """Base of expert configs: the training settings plus named presets.
 
     Subclasses add their fields (each with a docstring; constants that differ from the paper or the
@@ -66,19 +67,6 @@ class ExpertConfig:
 
     train: TrainConfig = field(default_factory=TrainConfig)
     """Settings of the training loop (iterations, batch, D-SSIM weight, resolution ...)."""
-
-    @classmethod
-    def presets(cls) -> dict[str, Callable[[], ExpertConfig]]:
-        """Named presets: ``"quick"`` (CPU minutes, small resolution) and ``"paper"`` (original protocol)."""
-        raise NotImplementedError(f"{cls.__name__} defines no presets")
-
-    @classmethod
-    def from_preset(cls, name: str) -> ExpertConfig:
-        presets = cls.presets()
-        if name not in presets:
-            valid = ", ".join(presets)
-            raise ValueError(f"unknown preset {name!r} for {cls.__name__}; valid presets: {valid}")
-        return presets[name]()
 
 
 @dataclass

@@ -9,9 +9,28 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import typing
-from typing import Any
+from collections.abc import Callable
+from typing import Any, Self
 
 _TYPE = "_type"
+
+
+class Presets:
+    """Mixin of config dataclasses with named presets: implement ``presets()``, get ``from_preset``."""
+
+    @classmethod
+    def presets(cls) -> dict[str, Callable[[], Self]]:
+        """Named presets, e.g. ``"quick"`` (CPU minutes) and ``"paper"`` (the original protocol)."""
+        raise NotImplementedError(f"{cls.__name__} defines no presets")
+
+    @classmethod
+    def from_preset(cls, name: str) -> Self:
+        presets = cls.presets()
+        if name not in presets:
+            raise ValueError(
+                f"unknown preset {name!r} for {cls.__name__}; valid presets: {', '.join(presets)}"
+            )
+        return presets[name]()
 
 
 def _qualname(cls: type) -> str:

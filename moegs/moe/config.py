@@ -20,6 +20,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from moegs.io.config import Presets
+
 ROUTERS = ("vapr", "pixel", "volume")
 """Router variants: volume-aware pixel router (the paper's), pixel router, volume router (ablation)."""
 QUICK_ROUTER_ITERATIONS = 300
@@ -27,7 +29,7 @@ PAPER_ROUTER_ITERATIONS = 5000
 
 
 @dataclass
-class RouterConfig:
+class RouterConfig(Presets):
     """Settings of one router and its training (experts frozen, router parameters only)."""
 
     variant: str = "vapr"
@@ -110,10 +112,3 @@ class RouterConfig:
             "paper": cls,
             "code": lambda: cls(phi_kernel=1, init_w_dir=0.9, train_temperature=0.01),
         }
-
-    @classmethod
-    def from_preset(cls, name: str) -> RouterConfig:
-        presets = cls.presets()
-        if name not in presets:
-            raise ValueError(f"unknown router preset {name!r}; valid presets: {', '.join(presets)}")
-        return presets[name]()

@@ -24,12 +24,13 @@ from torch import Tensor
 
 from moegs.data.scene import Scene, View
 from moegs.experts.base import Expert
+from moegs.io.config import Presets
 from moegs.moe.model import MoEGS
 from moegs.train.losses import photometric
 
 
 @dataclass
-class DistillConfig:
+class DistillConfig(Presets):
     """Settings of distillation into one expert."""
 
     iterations: int | None = None
@@ -47,13 +48,6 @@ class DistillConfig:
     @classmethod
     def presets(cls) -> dict[str, Callable[[], DistillConfig]]:
         return {"quick": cls, "paper": cls}
-
-    @classmethod
-    def from_preset(cls, name: str) -> DistillConfig:
-        presets = cls.presets()
-        if name not in presets:
-            raise ValueError(f"unknown distillation preset {name!r}; valid presets: {', '.join(presets)}")
-        return presets[name]()
 
 
 def kd_loss(
