@@ -67,6 +67,8 @@ class RouterConfig(Presets):
     the authors' code has no pixel router)."""
 
     # -- optimisation (code: RAdam; paper: 0.5 for w, w_dir and 0.05 for Phi, w_time) ------------------
+    optimizer: str = "radam"
+    """``"radam"`` (code) or ``"adam"``."""
     lr_w: float = 0.5
     """Rate of w and w_dir (and of the volume router's gate logits), decayed exponentially."""
     lr_w_final_ratio: float = 0.01
@@ -108,7 +110,13 @@ class RouterConfig(Presets):
         """``quick`` (CPU minutes), ``paper`` (5000 iterations, paper conventions), ``code`` (5000
         iterations with the authors' code conventions: 1x1 Phi, w_dir = 0.9, training temperature 0.01)."""
         return {
-            "quick": lambda: cls(iterations=QUICK_ROUTER_ITERATIONS, max_eval_views=8),
+            "quick": lambda: cls(
+                iterations=QUICK_ROUTER_ITERATIONS,
+                max_eval_views=8,
+                # quick: RAdam -> Adam (RAdam's variance warm-up keeps its step at ~20 % of Adam's for the
+                # first few hundred steps; over 300 steps the router would barely move)
+                optimizer="adam",
+            ),
             "paper": cls,
             "code": lambda: cls(phi_kernel=1, init_w_dir=0.9, train_temperature=0.01),
         }

@@ -36,11 +36,11 @@ from moegs.train.optim import Optimizers
 from moegs.train.sampler import ViewSampler
 
 RADAM_EPS = 1e-8
-"""The code builds ``torch.optim.RAdam(..., lr=0.001)`` with torch's default eps."""
+"""The code builds ``torch.optim.RAdam(..., lr=0.001)`` with torch's default eps (kept with Adam too)."""
 
 
 def router_param_groups(model: MoEGS) -> list[ParamGroup]:
-    """RAdam groups with the paper's rates; only ``w`` (w, w_dir) is decayed (code ``f_m``)."""
+    """Groups with the paper's rates (RAdam in the code); only ``w`` (w, w_dir) is decayed (code ``f_m``)."""
     c = model.config
     rates = {
         "w": {"lr": c.lr_w, "lr_final": c.lr_w * c.lr_w_final_ratio, "max_steps": c.decay_steps},
@@ -48,7 +48,7 @@ def router_param_groups(model: MoEGS) -> list[ParamGroup]:
         "phi": {"lr": c.lr_phi},
     }
     return [
-        ParamGroup(name, params, optimizer="radam", eps=RADAM_EPS, **rates[name])
+        ParamGroup(name, params, optimizer=c.optimizer, eps=RADAM_EPS, **rates[name])
         for name, params in model.router.param_groups().items()
     ]
 

@@ -57,7 +57,9 @@ def test_param_groups_have_the_paper_rates(experts):
     assert groups["w"].lr == 0.5 and groups["w"].lr_final == pytest.approx(0.005)
     assert groups["w"].max_steps == 60  # code: 10000 steps for 5000 iterations
     assert groups["w_time"].lr == 0.05 and groups["w_time"].lr_final is None
-    assert groups["phi"].lr == 0.05 and all(g.optimizer == "radam" for g in groups.values())
+    assert groups["phi"].lr == 0.05 and all(g.optimizer == "adam" for g in groups.values())  # quick
+    paper = router_param_groups(MoEGS(experts, RouterConfig.from_preset("paper")))
+    assert all(g.optimizer == "radam" and g.eps == 1e-8 for g in paper)
 
 
 def test_interrupted_training_resumes_exactly(scene, experts, tmp_path):
