@@ -30,16 +30,16 @@ def real_data(relative: str) -> Path:
     return root / relative
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def mutant_root() -> Path:
     return real_data("dnerf/mutant")
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def basketball_root() -> Path:
     return real_data("panoptic/basketball")
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def lpips_root() -> Path:
     return real_data("lpips_weights/lpips_tf/alex")

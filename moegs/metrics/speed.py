@@ -25,6 +25,7 @@ import statistics
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
+from functools import cache
 from typing import Any
 
 import torch
@@ -93,13 +94,34 @@ def _status_kb(key: str) -> int | None:
 
 
 def _reset_peak_rss() -> bool:
-    """Reset the process's ``VmHWM`` to its current RSS (Linux >= 4.0); ``False`` if not possible."""
+    """Reset the process's ``VmHWM`` to its current RSS (Linux >= 4.0); ``False`` if not possible.
+
+    Some kernels and sandboxes accept the write to ``clear_refs`` and ignore it, or never raise
+    ``VmHWM`` afterwards; a one-time probe (touch and free 32 MiB) checks that the reset lowers the
+    mark and that an allocation then raises it again.
+    """
     try:
         with open("/proc/self/clear_refs", "w") as fh:
             fh.write("5")
     except OSError:
         return False
-    return _status_kb("VmHWM") is not None
+    hwm, rss = _status_kb("VmHWM"), _status_kb("VmRSS")
+    return hwm is not None and rss is not None and hwm <= rss + 1024 and _peak_rss_tracks_allocations()
+
+
+@cache
+def _peak_rss_tracks_allocations() -> bool:
+    probe_kb = 32 * 1024
+    before = _status_kb("VmHWM")
+    probe = bytearray(probe_kb * 1024)  # zero-filled by the allocator: the pages are touched
+    probe[::4096] = b"\x01" * len(probe[::4096])
+    del probe
+    after = _status_kb("VmHWM")
+    if before is None or after is None or after - before < probe_kb // 2:
+        return False
+    with open("/proc/self/clear_refs", "w") as fh:
+        fh.write("5")
+    return True
 
 
 def _maxrss_kb() -> int:

@@ -104,6 +104,7 @@ def test_presets_and_config_round_trip():
     presets = DeformableConfig.presets()
     assert {"quick", "paper", "paper-dnerf", "paper-n3v", "paper-hypernerf"} <= set(presets)
     paper, real = DeformableConfig.from_preset("paper"), DeformableConfig.from_preset("paper-hypernerf")
+
     def key(c):
         return c.time_freqs, c.timenet_out, c.time_noise, c.train.iterations
 

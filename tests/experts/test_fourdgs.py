@@ -45,6 +45,7 @@ def test_hexplane_uses_the_point_cloud_box_and_scene_time_resolution(scene):
     assert torch.equal(expert.fields.grid.aabb, torch.stack([means.max(0).values, means.min(0).values]))
     assert expert.fields.grid.resolution == (32, 32, 32, 25)  # quick planes; unknown scene -> 25
     from moegs.experts.fourdgs import TIME_RESOLUTION
+
     assert TIME_RESOLUTION["dnerf:mutant"] == 75
 
 
@@ -80,8 +81,11 @@ def test_regulariser_is_the_weighted_sum_in_the_fine_stage(scene):
     expert.on_step(3)
     grid, c = expert.fields.grid, expert.config
     with torch.no_grad():
-        want = (c.plane_tv_weight * grid.space_smoothness()
-                + c.time_smoothness_weight * grid.time_smoothness() + c.l1_time_planes * grid.time_l1())
+        want = (
+            c.plane_tv_weight * grid.space_smoothness()
+            + c.time_smoothness_weight * grid.time_smoothness()
+            + c.l1_time_planes * grid.time_l1()
+        )
         assert float(expert.regularization(3)) == pytest.approx(float(want))
     off = _expert(scene, coarse=0, time_smoothness_weight=0.0)
     off.on_step(1)
@@ -124,21 +128,34 @@ def _strategy_setup(scene, n_points=40, **kw):
     points = PointCloud(torch.rand(n_points, 3, generator=g), torch.rand(n_points, 3, generator=g))
     splats = init_splats(points)
     optimizers = Optimizers([_group(k, v) for k, v in splats.items()]).for_splats(splats)
-    strategy = FourDGSStrategy(coarse_iterations=10, densify_from=1, densify_every=2, prune_from=1,
-                               prune_every=2, reset_every=1000, **kw)
+    strategy = FourDGSStrategy(
+        coarse_iterations=10,
+        densify_from=1,
+        densify_every=2,
+        prune_from=1,
+        prune_every=2,
+        reset_every=1000,
+        **kw,
+    )
     return strategy, splats, optimizers, strategy.initialize_state(scene_scale=100.0)
 
 
 def _group(name, param):
     from moegs.experts.base import ParamGroup
+
     return ParamGroup(name, [param], 1e-3)
 
 
 def _render(n, grad):
     means2d = torch.zeros(n, 2, requires_grad=True)
     means2d.grad = torch.full((n, 2), grad)
-    return {"means2d": means2d, "visible": torch.ones(n, dtype=torch.bool),
-            "radii": torch.ones(n, dtype=torch.int32), "width": 2, "height": 2}
+    return {
+        "means2d": means2d,
+        "visible": torch.ones(n, dtype=torch.bool),
+        "radii": torch.ones(n, dtype=torch.int32),
+        "width": 2,
+        "height": 2,
+    }
 
 
 def test_strategy_densifies_below_the_cap_and_sums_batch_gradients(scene):

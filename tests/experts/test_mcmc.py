@@ -10,8 +10,6 @@ from moegs.experts import get_expert_class
 from moegs.experts.mcmc import MCMCConfig, MCMCExpert, key_times
 from moegs.train.strategy import ADCStrategy, MCMCStrategy
 
-MCMC_PSNR_FLOOR = 17.0  # measured 18.7 dB (quick preset, 4 time bins, mutant 100x100, test split)
-
 
 @pytest.fixture(scope="module")
 def scene():
@@ -73,11 +71,8 @@ def test_strategy_must_be_grouped(scene):
 
 @pytest.mark.realdata
 @pytest.mark.slow
-def test_quick_run_on_mutant():
+def test_quick_run_on_mutant_grows_every_model():  # its PSNR floor: test_mutant_quick.py
     run = trained_expert("mcmc", "dnerf:mutant", "quick")
-    test = run.metrics["test"]
-    assert run.metrics["completed"] and test["num_views"] == 20
-    assert test["psnr"] >= MCMC_PSNR_FLOOR, test["psnr"]
     counts = torch.bincount(run.expert.splats["model"], minlength=run.expert.num_models)
     cap = run.expert.config.strategy.cap_max
     assert (counts > run.expert.config.max_init_points).all() and (counts <= cap).all()  # every model grew

@@ -8,8 +8,9 @@ from moegs.fields import DecomposedHashGrid4D, HashGrid, smoothstep
 
 def _grid(**kw):
     # base 4, desired 16, 3 levels -> growth 2; scales 3, 7, 15; resolutions 4, 8, 16; table 2^6 = 64
-    args = dict(input_dim=3, num_levels=3, level_dim=1, base_resolution=4, desired_resolution=16,
-                log2_hashmap_size=6)
+    args = dict(
+        input_dim=3, num_levels=3, level_dim=1, base_resolution=4, desired_resolution=16, log2_hashmap_size=6
+    )
     args.update(kw)
     return HashGrid(**args)
 
@@ -62,12 +63,15 @@ def _single_level_with_row_values():
 
 def test_lookup_at_a_vertex_and_between_vertices():
     g = _single_level_with_row_values()
-    u = torch.tensor([
-        [1 / 3, 2 / 3, 1.0],  # vertex (1, 2, 3): row 57
-        [1.5 / 3, 2 / 3, 1.0],  # halfway (1,2,3)-(2,2,3): smoothstep(0.5) = 0.5 -> (57 + 58) / 2
-        [1.25 / 3, 2 / 3, 1.0],  # f = 0.25: 0.84375 * 57 + 0.15625 * 58
-        [0.0, 0.0, 0.0],  # vertex (0, 0, 0): row 0
-    ], dtype=torch.float32)
+    u = torch.tensor(
+        [
+            [1 / 3, 2 / 3, 1.0],  # vertex (1, 2, 3): row 57
+            [1.5 / 3, 2 / 3, 1.0],  # halfway (1,2,3)-(2,2,3): smoothstep(0.5) = 0.5 -> (57 + 58) / 2
+            [1.25 / 3, 2 / 3, 1.0],  # f = 0.25: 0.84375 * 57 + 0.15625 * 58
+            [0.0, 0.0, 0.0],  # vertex (0, 0, 0): row 0
+        ],
+        dtype=torch.float32,
+    )
     assert g(u)[:, 0].tolist() == pytest.approx([57.0, 57.5, 57.15625, 0.0], abs=1e-4)
 
 
@@ -75,8 +79,9 @@ def test_out_of_range_is_zero_without_gradient():
     g = _grid()
     with torch.no_grad():
         g.embeddings.fill_(1.0)
-    u = torch.tensor([[0.5, 0.5, 0.5], [1.01, 0.5, 0.5], [0.5, -1e-3, 0.5], [1.0, 1.0, 0.0]],
-                     requires_grad=True)
+    u = torch.tensor(
+        [[0.5, 0.5, 0.5], [1.01, 0.5, 0.5], [0.5, -1e-3, 0.5], [1.0, 1.0, 0.0]], requires_grad=True
+    )
     out = g(u)
     assert out[1].abs().sum() == 0 and out[2].abs().sum() == 0
     assert out[0].tolist() == pytest.approx([1.0] * 3) and out[3].tolist() == pytest.approx([1.0] * 3)
@@ -91,7 +96,7 @@ def test_gradient_flows_to_the_corner_rows():
     g(u).sum().backward()
     grad = g.embeddings.grad[:, 0]
     for level in range(3):
-        block = grad[g.offsets[level]:g.offsets[level + 1]]
+        block = grad[g.offsets[level] : g.offsets[level + 1]]
         assert float(block.sum()) == pytest.approx(1.0, abs=1e-6)  # weights of the 8 corners sum to 1
         assert int((block != 0).sum()) <= 8
 
@@ -106,9 +111,17 @@ def test_output_is_level_major():
 
 
 def test_decomposed_4d_mapping_and_block_order():
-    enc = DecomposedHashGrid4D(bound=2.0, spatial_levels=2, spatial_base=4, spatial_desired=8,
-                               spatial_log2_size=10, temporal_levels=2, temporal_base=(4, 4, 4),
-                               temporal_desired=(8, 8, 4), temporal_log2_size=10)
+    enc = DecomposedHashGrid4D(
+        bound=2.0,
+        spatial_levels=2,
+        spatial_base=4,
+        spatial_desired=8,
+        spatial_log2_size=10,
+        temporal_levels=2,
+        temporal_base=(4, 4, 4),
+        temporal_desired=(8, 8, 4),
+        temporal_log2_size=10,
+    )
     assert enc.time_coordinate(torch.tensor([0.0, 1.0])).tolist() == pytest.approx([-1.8, 1.8])
     assert enc._unit(enc.time_coordinate(torch.tensor([0.0, 1.0]))).tolist() == pytest.approx([0.05, 0.95])
     assert enc.spatial_dim == 4 and enc.temporal_dim == 12
@@ -117,7 +130,7 @@ def test_decomposed_4d_mapping_and_block_order():
     h_t = enc.encode_temporal(xyzt)
     for k, (a, b) in enumerate(enc.PAIRS):
         expected = enc.temporal[k](enc._unit(xyzt[:, [a, b, 3]]))
-        assert torch.equal(h_t[:, 4 * k:4 * k + 4], expected)
+        assert torch.equal(h_t[:, 4 * k : 4 * k + 4], expected)
     # the xyt grid ignores z; the yzt grid ignores x
     moved = xyzt.clone()
     moved[0, 2] += 0.3

@@ -13,13 +13,16 @@ def _plane(h, w):
 
 def test_sample_plane_nodes_midpoints_and_border():
     plane = _plane(3, 4)  # value = 4 * row + col
-    coords = torch.tensor([
-        [-1.0, -1.0],  # node (row 0, col 0)
-        [1.0, 1.0],  # node (2, 3)
-        [-1.0 + 2.0 / 3.0, 0.0],  # node (1, 1): align_corners puts col k at -1 + 2k / 3
-        [-1.0 + 1.0 / 3.0, -0.5],  # midpoint of cols 0,1 and rows 0,1
-        [3.0, 0.0],  # beyond the right edge: border padding -> col 3, row 1
-    ], dtype=torch.float64)
+    coords = torch.tensor(
+        [
+            [-1.0, -1.0],  # node (row 0, col 0)
+            [1.0, 1.0],  # node (2, 3)
+            [-1.0 + 2.0 / 3.0, 0.0],  # node (1, 1): align_corners puts col k at -1 + 2k / 3
+            [-1.0 + 1.0 / 3.0, -0.5],  # midpoint of cols 0,1 and rows 0,1
+            [3.0, 0.0],  # beyond the right edge: border padding -> col 3, row 1
+        ],
+        dtype=torch.float64,
+    )
     got = sample_plane(plane, coords)[:, 0].tolist()
     assert got == pytest.approx([0.0, 11.0, 5.0, (0 + 1 + 4 + 5) / 4, 7.0])
 
@@ -50,8 +53,9 @@ def test_aabb_map_is_the_original_mirrored_one():
 
 
 def test_product_of_planes_and_concat_over_scales():
-    field = HexPlane(resolution=(3, 3, 3, 3), feature_dim=1, multires=(1, 2), aabb_min=(-1.0,) * 3,
-                     aabb_max=(1.0,) * 3)
+    field = HexPlane(
+        resolution=(3, 3, 3, 3), feature_dim=1, multires=(1, 2), aabb_min=(-1.0,) * 3, aabb_max=(1.0,) * 3
+    )
     with torch.no_grad():
         for k, p in enumerate(field.scales[0]):
             p.fill_(k + 1.0)  # constant planes: product = 6!

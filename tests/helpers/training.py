@@ -16,6 +16,7 @@ from functools import cache
 from pathlib import Path
 
 import pytest
+import torch
 
 from moegs.data.scene import Scene
 from moegs.experts.base import Expert
@@ -76,6 +77,7 @@ def trained_expert(name: str, scene: str, preset: str = "quick") -> TrainedRun:
     if metrics_file.is_file() and json.loads(metrics_file.read_text()).get("completed"):
         expert, _ = load_expert(path, loaded)
         return TrainedRun(expert, loaded, json.loads(metrics_file.read_text()), path)
+    torch.manual_seed(config.train.seed)  # network init in from_scene: independent of earlier tests
     expert = cls.from_scene(loaded, config)
     metrics = train(expert, loaded, out_dir=path, progress=False)
     return TrainedRun(expert.eval(), loaded, metrics, path)

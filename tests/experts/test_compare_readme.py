@@ -1,0 +1,116 @@
+"""``moegs compare --readme``: the README results section from (fake) finished runs and tables/paper."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+
+from bench.paper import list_original_tables, load_original_table, load_paper_table
+from moegs.cli import main
+from moegs.compare import PAPER_NAMES, PUBLISHED, published_numbers, readme_section
+
+PROFILE = "moegs/psnr_raw-ssim_3dgs-lpips_alex_legacy01"
+README = "# title\n\nintro\n\n<!-- results:mutant -->\nstale table\n<!-- /results:mutant -->\n\n## After\n"
+
+
+def fake_run(out, expert, psnr, ssim=0.9, lpips=0.05, seconds=12.0):
+    """A finished run as the training loop writes it (only what compare reads)."""
+    result = {
+        "expert": expert,
+        "scene": "dnerf:mutant",
+        "stand_in": "",
+        "completed": True,
+        "iterations": 600,
+        "num_gaussians": 1234,
+        "train_seconds": seconds,
+        "test": {
+            "psnr": psnr,
+            "ssim": ssim,
+            "lpips": lpips,
+            "profile": {"id": PROFILE},
+            "num_views": 2,
+            "per_view": [{"key": f"dnerf:mutant/test/{i}@100x100", "psnr": psnr} for i in range(2)],
+        },
+    }
+    (out / expert).mkdir(parents=True)
+    (out / expert / "metrics.json").write_text(json.dumps(result))
+
+
+def printed(table, row, metrics=("PSNR", "SSIM", "LPIPS")):
+    return " / ".join(table.cell(row, "Mutant", m)["printed"] for m in metrics)
+
+
+@pytest.fixture
+def runs(tmp_path):
+    out = tmp_path / "runs"
+    fake_run(out, "static", 22.5, 0.93, 0.08, 18.6)
+    fake_run(out, "deformable", 25.25, 0.95, 0.04, 140.4)
+    fake_run(out, "ed3dgs", 24.0, lpips=None)
+    return out
+
+
+def test_readme_section_rewritten_from_runs_and_published_tables(runs, tmp_path, capsys):
+    readme = tmp_path / "README.md"
+    readme.write_text(README)
+    args = ["compare", "--experts", "static,deformable,ed3dgs", "--scene", "dnerf:mutant", "--out", str(runs)]
+    assert main([*args, "--readme", str(readme), "--quiet"]) == 0
+    assert "README section 'mutant'" in capsys.readouterr().out
+    text = readme.read_text()
+    head, rest = text.split("<!-- results:mutant -->\n")
+    body, tail = rest.split("<!-- /results:mutant -->")
+    assert head == "# title\n\nintro\n\n" and tail == "\n\n## After\n" and "stale" not in body
+
+    own, moegs = load_original_table("dnerf_mutant"), load_paper_table("tab17")
+    lines = body.splitlines()
+    row = next(line for line in lines if line.startswith("| deformable |"))
+    assert row.startswith(
+        "| deformable | DeformableGS | 25.25 | 0.9500 | 0.0400 | +2.75 | 140 | 1234 | 600 |"
+    )
+    sources = dict(re.findall(r"^(\d+)\. (.+)$", body, re.M))
+    own_cell, moegs_cell = row.split(" | ")[-2:]
+    ref = re.fullmatch(re.escape(printed(own, "DeformableGS")) + r" \[(\d)\]", own_cell).group(1)
+    assert sources[ref] == own.cell("DeformableGS", "Mutant", "PSNR")["source"]
+    ref = re.fullmatch(
+        re.escape(printed(moegs, "DeformableGS", ["PSNR"])) + r" \(PSNR\) \[(\d)\] \|", moegs_cell
+    )
+    assert "MoE-GS paper, Table XVII" in sources[ref.group(1)]
+    static = next(line for line in lines if line.startswith("| static |"))
+    assert "| 3D-GS | 22.50 | 0.9300 | 0.0800 | – | 19 |" in static and printed(own, "3D-GS") in static
+    ed3dgs = next(line for line in lines if line.startswith("| ed3dgs |"))
+    assert "| 24.00 | 0.9000 | n/a | +1.50 |" in ed3dgs and ed3dgs.endswith("| – | – |")
+    moe = next(line for line in lines if "MoE-GS (N=2)" in line)  # published row that no expert maps to
+    assert moe.startswith("| – | MoE-GS (N=2) | – |") and printed(moegs, "MoE-GS (N=2)", ["PSNR"]) in moe
+    assert "100x100" in body and PROFILE in body
+    assert len(sources) == 3  # DeformableGS and 3D-GS rows of their Table 1, MoE-GS Table XVII
+
+    assert main([*args, "--readme", str(readme), "--quiet"]) == 0  # finished runs: same text again
+    assert readme.read_text() == text
+
+
+def test_readme_without_markers_fails(runs, tmp_path, capsys):
+    readme = tmp_path / "README.md"
+    readme.write_text("# no section\n")
+    argv = ["compare", "--experts", "static", "--scene", "dnerf:mutant", "--out", str(runs), "--quiet"]
+    assert main([*argv, "--readme", str(readme)]) == 2
+    assert "<!-- results:mutant -->" in capsys.readouterr().err
+    assert readme.read_text() == "# no section\n"
+
+
+def test_section_without_published_numbers():
+    table = {"scene": "synthetic:x", "preset": "quick", "rows": []}
+    assert published_numbers("synthetic:x") == []
+    text = readme_section(table, [], machine="test cpu")
+    assert "Sources" not in text and "test cpu" in text
+
+
+def test_published_tables_have_sources_and_known_rows():
+    for table_id in list_original_tables():
+        table = load_original_table(table_id)
+        assert all(v["source"] and v["printed"] for v in table.values)
+    for scene, spec in PUBLISHED.items():
+        entries = published_numbers(scene)
+        assert len(entries) == len(spec["originals"]) + len(spec["moegs"])
+        rows = {row for e in entries for row in e["rows"]}
+        assert rows & set(PAPER_NAMES.values()), rows
