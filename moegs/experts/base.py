@@ -57,6 +57,20 @@ class ParamGroup:
     """Iteration at which the schedule starts (its step 0), e.g. the first step of a later stage."""
 
 
+def splat_param_groups(
+    splats: nn.ParameterDict,
+    means: tuple[float, float, int],
+    constant: list[tuple[str, float]],
+    **options,
+) -> list[ParamGroup]:
+    """The 3DGS optimiser layout over per-Gaussian tensors: ``means`` on the exponential schedule
+    ``(lr, lr_final, max_steps)`` (already times the spatial scale), each ``(key, lr)`` of ``constant``
+    at a constant rate; ``options`` (``eps``, ``optimizer``) apply to every group."""
+    lr, lr_final, max_steps = means
+    first = ParamGroup("means", [splats["means"]], lr, lr_final=lr_final, max_steps=max_steps, **options)
+    return [first] + [ParamGroup(key, [splats[key]], rate, **options) for key, rate in constant]
+
+
 @dataclass
 class ExpertConfig(Presets):
     """Base of expert configs: the training settings plus named presets.

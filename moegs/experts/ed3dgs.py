@@ -34,7 +34,7 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene, View
-from moegs.experts.base import Expert, ExpertConfig, ParamGroup
+from moegs.experts.base import Expert, ExpertConfig, ParamGroup, splat_param_groups
 from moegs.experts.canonical import QUICK_ITERATIONS
 from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats, num_sh_bases
 from moegs.experts.static import QUICK_RESOLUTION, scene_points, thin_points
@@ -523,28 +523,25 @@ class ED3DGSExpert(Expert):
     def param_groups(self) -> list[ParamGroup]:
         c, sc, s, f = self.config, self.spatial_lr_scale, self.splats, self.fields
         deformation = [f.temporal, *f.coarse.parameters(), *f.fine.parameters()]
-        groups = [
-            ParamGroup(
-                "means",
-                [s["means"]],
-                c.means_lr * sc,
-                lr_final=c.means_lr_final * sc,
-                max_steps=c.means_lr_max_steps,
-            ),
+        means = (c.means_lr * sc, c.means_lr_final * sc, c.means_lr_max_steps)
+        constant = [
+            ("embedding", c.embedding_lr),
+            ("sh0", c.sh0_lr),
+            ("shN", c.shN_lr),
+            ("opacities", c.opacities_lr),
+            ("scales", c.scales_lr),
+            ("quats", c.quats_lr),
+        ]
+        groups = splat_param_groups(s, means, constant)
+        groups.append(
             ParamGroup(
                 "deformation",
                 deformation,
                 c.deformation_lr * sc,
                 lr_final=c.deformation_lr_final * sc,
                 max_steps=c.deformation_lr_max_steps,
-            ),
-            ParamGroup("embedding", [s["embedding"]], c.embedding_lr),
-            ParamGroup("sh0", [s["sh0"]], c.sh0_lr),
-            ParamGroup("shN", [s["shN"]], c.shN_lr),
-            ParamGroup("opacities", [s["opacities"]], c.opacities_lr),
-            ParamGroup("scales", [s["scales"]], c.scales_lr),
-            ParamGroup("quats", [s["quats"]], c.quats_lr),
-        ]
+            )
+        )
         if f.offsets is not None:
             groups.append(ParamGroup("offsets", [f.offsets], c.offsets_lr))
         return groups

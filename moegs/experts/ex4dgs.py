@@ -33,7 +33,7 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene, View
-from moegs.experts.base import Expert, ExpertConfig, ParamGroup, SplatInputs
+from moegs.experts.base import Expert, ExpertConfig, ParamGroup, SplatInputs, splat_param_groups
 from moegs.experts.canonical import QUICK_ITERATIONS
 from moegs.experts.gaussian_params import active_sh_degree, init_splats, sh_coeffs
 from moegs.experts.static import QUICK_RESOLUTION, scene_points, thin_points
@@ -331,13 +331,7 @@ class Ex4DGSStrategy(ADCStrategy):
             prune |= (params["err_count"] > 0) & (
                 (l1 > self.error_l1) | ((ssim > 0) & (ssim < self.error_ssim))
             )
-        ops.remove(params, optimizers, prune)
-        self._reset_stats(state, params["means"].shape[0], params["means"].detach())
-        state["last_refine"] = {
-            "clone": int(clone.sum()),
-            "split": int(to_split.sum()),
-            "prune": int(prune.sum()),
-        }
+        self._remove_and_record(params, optimizers, state, clone, to_split, prune)
 
     def step_post_backward(self, params, optimizers, state, step: int, info: dict) -> None:
         super().step_post_backward(params, optimizers, state, step, info)
@@ -659,20 +653,8 @@ class Ex4DGSExpert(Expert):
             ("centers", c.centers_lr),
             ("widths", c.widths_lr),
         ]
-        groups = [
-            ParamGroup(
-                "means",
-                [s["means"]],
-                c.means_lr * sc,
-                lr_final=c.means_lr_final * sc,
-                max_steps=c.means_lr_max_steps,
-                eps=c.optimizer_eps,
-                optimizer=c.optimizer,
-            )
-        ]
-        return groups + [
-            ParamGroup(k, [s[k]], lr, eps=c.optimizer_eps, optimizer=c.optimizer) for k, lr in constant
-        ]
+        means = (c.means_lr * sc, c.means_lr_final * sc, c.means_lr_max_steps)
+        return splat_param_groups(s, means, constant, eps=c.optimizer_eps, optimizer=c.optimizer)
 
     def strategy(self) -> Strategy:
         return self.config.strategy

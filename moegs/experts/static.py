@@ -14,7 +14,7 @@ import torch
 
 from moegs.camera import Camera
 from moegs.data.scene import PointCloud, Scene
-from moegs.experts.base import Expert, ExpertConfig, ParamGroup
+from moegs.experts.base import Expert, ExpertConfig, ParamGroup, splat_param_groups
 from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats
 from moegs.gaussians import GaussianFrame
 from moegs.train.config import TrainConfig
@@ -120,20 +120,15 @@ class StaticExpert(Expert):
 
     def param_groups(self) -> list[ParamGroup]:
         c, s = self.config, self.spatial_lr_scale
-        return [
-            ParamGroup(
-                "means",
-                [self.splats["means"]],
-                c.means_lr * s,
-                lr_final=c.means_lr_final * s,
-                max_steps=c.means_lr_max_steps,
-            ),
-            ParamGroup("sh0", [self.splats["sh0"]], c.sh0_lr),
-            ParamGroup("shN", [self.splats["shN"]], c.shN_lr),
-            ParamGroup("opacities", [self.splats["opacities"]], c.opacities_lr),
-            ParamGroup("scales", [self.splats["scales"]], c.scales_lr),
-            ParamGroup("quats", [self.splats["quats"]], c.quats_lr),
+        means = (c.means_lr * s, c.means_lr_final * s, c.means_lr_max_steps)
+        constant = [
+            ("sh0", c.sh0_lr),
+            ("shN", c.shN_lr),
+            ("opacities", c.opacities_lr),
+            ("scales", c.scales_lr),
+            ("quats", c.quats_lr),
         ]
+        return splat_param_groups(self.splats, means, constant)
 
     def strategy(self) -> Strategy:
         return self.config.strategy

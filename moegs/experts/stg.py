@@ -44,6 +44,7 @@ from moegs.experts.base import (
     SplatInputs,
     check_keep,
     render_splat_inputs,
+    splat_param_groups,
 )
 from moegs.experts.canonical import QUICK_ITERATIONS
 from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats
@@ -369,17 +370,8 @@ class STGExpert(Expert):
             ("trbf_center", c.trbf_center_lr),
             ("trbf_scale", c.trbf_scale_lr),
         ]
-        groups = [
-            ParamGroup(
-                "means",
-                [s["means"]],
-                c.means_lr * sc,
-                lr_final=c.means_lr_final * sc,
-                max_steps=c.means_lr_max_steps,
-                optimizer=c.optimizer,
-            )
-        ]
-        groups += [ParamGroup(k, [s[k]], lr, optimizer=c.optimizer) for k, lr in constant]
+        means = (c.means_lr * sc, c.means_lr_final * sc, c.means_lr_max_steps)
+        groups = splat_param_groups(s, means, constant, optimizer=c.optimizer)
         if self.config.color == "full":
             groups.append(
                 ParamGroup("decoder", list(self.fields.parameters()), c.decoder_lr, optimizer=c.optimizer)

@@ -119,6 +119,10 @@ class ADCStrategy(Strategy):
         if step > self.reset_every:
             prune |= torch.exp(params["scales"]).max(dim=1).values > self.prune_world_scale * extent
             prune |= big_screen
+        self._remove_and_record(params, optimizers, state, clone, to_split, prune)
+
+    def _remove_and_record(self, params, optimizers, state, clone, to_split, prune) -> None:
+        """Last step of a refinement: drop ``prune``, restart the statistics, record the counts."""
         ops.remove(params, optimizers, prune)
         self._reset_stats(state, params["means"].shape[0], params["means"].detach())
         state["last_refine"] = {
