@@ -12,13 +12,15 @@ Memory, two different quantities, recorded with their kind:
   the number to compare across runs; ``nvidia-smi`` figures are larger.
 - ``"cpu_rss_peak_delta"``: growth of the process resident set over the timed renders: peak RSS
   (``VmHWM``, reset through ``/proc/self/clear_refs``) minus RSS before. Counts every allocation of
-  the process (numpy, torch, C++), not only tensors, and excludes memory that was already resident.
+  the process (numpy, torch, C++), not only tensors, and excludes memory that was already resident
+  (including freed memory the allocator hands out again: measure in a fresh process for absolutes).
 - ``"cpu_maxrss_delta"`` (fallback where the peak cannot be reset): growth of
   ``getrusage().ru_maxrss``, a lower bound that stays 0 while the process's earlier peak is higher.
 """
 
 from __future__ import annotations
 
+import mmap
 import platform
 import resource
 import statistics
@@ -113,9 +115,8 @@ def _reset_peak_rss() -> bool:
 def _peak_rss_tracks_allocations() -> bool:
     probe_kb = 32 * 1024
     before = _status_kb("VmHWM")
-    probe = bytearray(probe_kb * 1024)  # zero-filled by the allocator: the pages are touched
-    probe[::4096] = b"\x01" * len(probe[::4096])
-    del probe
+    with mmap.mmap(-1, probe_kb * 1024) as probe:  # fresh pages (malloc may reuse resident memory)
+        probe[::4096] = b"\x01" * (probe_kb // 4)
     after = _status_kb("VmHWM")
     if before is None or after is None or after - before < probe_kb // 2:
         return False

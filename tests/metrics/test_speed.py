@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import mmap
 import time
 
 import numpy as np
@@ -46,8 +47,12 @@ def test_device_inferred_from_nested_output():
 
 def test_cpu_peak_rss_delta():
     def render(view):
-        buf = np.ones(64 * 2**20 // 8)  # 64 MiB, touched
-        return float(buf[-1])
+        # Fresh anonymous pages, touched: malloc could instead hand back memory that is already
+        # resident after a long test session, which (rightly) does not grow the resident set.
+        size = 64 * 2**20
+        with mmap.mmap(-1, size) as buf:
+            buf[::4096] = b"\x01" * (size // 4096)
+            return buf[0]
 
     res = measure_render(render, views=[0, 1], warmup=1, repeats=2, device="cpu")
     if res.memory_kind != "cpu_rss_peak_delta":
