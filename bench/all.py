@@ -141,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     preset = get_preset("quick" if args.quick else args.preset)
 
-    from dataclasses import asdict
+    from dataclasses import fields
 
     from bench.plan import make_plan
     from bench.runner import execute
@@ -161,8 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     run = None
     if not args.no_run:
         summary = execute(run_plan, workspace, _executor(args), progress=not args.no_progress)
-        run = {
-            **{k: v for k, v in asdict(summary).items() if k != "failures"},
+        run = {  # not asdict(summary): a failure's Task holds read-only mappings that cannot be copied
+            **{f.name: getattr(summary, f.name) for f in fields(summary) if f.name != "failures"},
             "failures": [
                 {"task": o.task.slug, "log": str(o.log), "error": o.error} for o in summary.failures
             ],

@@ -210,3 +210,19 @@ def test_cli_table_module(run):
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert (out / "tables" / "tab17.tex").is_file() and (out / "reports" / "REPORT.md").is_file()
+
+
+def test_cli_reports_failed_cells(run, monkeypatch, capsys):
+    """``bench.all`` exits 1 with the failures listed (and still writes its outputs) when cells failed."""
+    import bench.runner
+    from bench.all import main
+    from bench.executors import Outcome
+    from bench.runner import RunSummary
+
+    failed = Outcome(_ok_slots(run)[0].task, False, run["ws"].root / "x.log", 1.0, "boom")
+    monkeypatch.setattr(bench.runner, "execute", lambda *a, **k: RunSummary(failures=[failed]))
+    out = run["out"] / "failed"
+    args = ["--tables", "17", "--preset", "tiny", "--workspace", str(run["ws"].root), "--out", str(out)]
+    assert main([*args, "--no-progress"]) == 1
+    assert "1 task(s) failed" in capsys.readouterr().err
+    assert (out / "reports" / "REPORT.md").is_file()
