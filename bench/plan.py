@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from bench.cells import NOT_COMPUTED, kind_module, missing_pieces
+from bench.datasets import get_dataset
 from bench.presets import BenchPreset
 from bench.registry import get_spec
 from bench.scenes import SceneRef, load_kwargs, resolve_scenes
@@ -118,6 +119,8 @@ def _slots(spec: Spec, row: Row, scenes: list[SceneRef], seeds: list[int], prese
                 params = dict(row.params)
                 if budget is not None and budget != 1.0:
                     params["budget"] = budget
+                if get_dataset(scene.dataset).expert_config:
+                    params["expert_config"] = get_dataset(scene.dataset).expert_config
                 task = (
                     None
                     if gone

@@ -8,10 +8,15 @@ from bench.tasks import Task
 
 
 def expert_task(task: Task, expert: str, budget: float | None = None) -> Task:
-    """Build task of a trained ``expert`` on ``task``'s scene/preset/seed (budget 1.0 = default run)."""
+    """Build task of a trained ``expert`` on ``task``'s scene/preset/seed (budget 1.0 = default run);
+    the config fields that ``task``'s dataset sets for this expert (``params["expert_config"]``) go with
+    it as ``params["config"]``."""
     params: dict[str, Any] = {"expert": expert}
     if budget is not None and float(budget) != 1.0:
         params["budget"] = float(budget)
+    config = task.params.get("expert_config", {}).get(expert)
+    if config:
+        params["config"] = dict(config)
     return task.derive("build", "expert", params)
 
 

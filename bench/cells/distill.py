@@ -21,7 +21,7 @@ from bench.cells import expert as expert_kind
 from bench.cells import module_missing
 from bench.cells import moe as moe_kind
 from bench.cells._eval import evaluate_renderer, module_megabytes
-from bench.cells._lib import expert_renderer, load_trained_expert, train_hours
+from bench.cells._lib import expert_renderer, expert_task, load_trained_expert, train_hours
 from bench.tasks import Task
 
 DISTILL_API = ("moegs.moe:DistillConfig", "moegs.moe:distill")
@@ -54,7 +54,7 @@ def build(task: Task, ctx: Any, out: Path) -> dict[str, Any]:
     scene = ctx.scene(task)
     teacher = moe_kind.load_model(ctx, _teacher(task))
     cls = get_expert_class(task.params["student"])
-    student_cfg = expert_kind.train_config(cls, ctx, task.derive("build", "expert", {"expert": cls.name}))
+    student_cfg = expert_kind.train_config(cls, ctx, expert_task(task, cls.name))
     torch.manual_seed(task.seed)
     student = cls.from_scene(scene, student_cfg)
     cfg = DistillConfig.from_preset(ctx.preset.expert_preset)

@@ -34,8 +34,9 @@ def deps(task: Task) -> list[Task]:
 
 
 def train_config(cls: Any, ctx: Any, task: Task):
-    """The expert config for ``task``: preset, seed, iterations (override x budget), evaluation."""
-    cfg = cls.config_class.from_preset(ctx.preset.expert_preset)
+    """The expert config for ``task``: preset, the dataset's fields (``params["config"]``), seed,
+    iterations (override x budget), evaluation."""
+    cfg = replace(cls.config_class.from_preset(ctx.preset.expert_preset), **task.params.get("config", {}))
     iterations = ctx.preset.steps(
         cfg.train.iterations, ctx.preset.train_steps, task.params.get("budget", 1.0)
     )

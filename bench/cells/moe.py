@@ -46,10 +46,13 @@ def missing(params: dict) -> list[str]:
 
 
 def router_task(task: Task, experts: list[str], router: str = "vapr", budget: float | None = None) -> Task:
-    """Build task of a trained router over ``experts`` (and the experts' budget)."""
+    """Build task of a trained router over ``experts`` (and the experts' budget and dataset configs)."""
     params: dict[str, Any] = {"experts": list(experts), "router": router}
     if budget is not None and float(budget) != 1.0:
         params["budget"] = float(budget)
+    configs = {e: c for e, c in task.params.get("expert_config", {}).items() if e in experts}
+    if configs:
+        params["expert_config"] = configs
     return task.derive("build", "moe", params)
 
 
