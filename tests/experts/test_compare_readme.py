@@ -82,8 +82,11 @@ def test_readme_section_rewritten_from_runs_and_published_tables(runs, tmp_path,
     assert "| 24.00 | 0.9000 | n/a | +1.50 |" in ed3dgs and ed3dgs.endswith("| – | – |")
     moe = next(line for line in lines if "MoE-GS (N=2)" in line)  # published row that no expert maps to
     assert moe.startswith("| – | MoE-GS (N=2) | – |") and printed(moegs, "MoE-GS (N=2)", ["PSNR"]) in moe
+    grid4d = next(line for line in lines if "| Grid4D |" in line)  # no run: published numbers only
+    assert grid4d.startswith("| – | Grid4D | – |") and printed(own, "Grid4D") in grid4d
+    assert printed(moegs, "Grid4D", ["PSNR"]) in grid4d
     assert "100x100" in body and PROFILE in body
-    assert len(sources) == 3  # DeformableGS and 3D-GS rows of their Table 1, MoE-GS Table XVII
+    assert len(sources) == 4  # DeformableGS Table 1 (2 rows), Grid4D README, MoE-GS Table XVII
 
     assert main([*args, "--readme", str(readme), "--quiet"]) == 0  # finished runs: same text again
     assert readme.read_text() == text
