@@ -155,3 +155,24 @@ def test_stage_switch_rebuilds_optimizers(scene, tmp_path):
     train(expert, scene, out_dir=tmp_path, progress=False)
     steps = load_checkpoint(tmp_path / CHECKPOINT_NAME)["optimizers"]["means"]["state"][0]["step"]
     assert int(steps) == 10  # steps 10..19 since the switch (the last iteration takes no step)
+
+
+def test_runs_repeat_bit_for_bit_and_restore_the_callers_setting():
+    """E-D3DGS's neighbour loss backpropagates through ``x[idx]`` with repeated indices, whose default
+    CPU kernel sums in thread order; ``train`` runs with deterministic kernels, so runs repeat."""
+    from dataclasses import replace
+
+    from moegs.experts import get_expert_class
+
+    scene = tiny_scene(num_frames=4)
+    cls = get_expert_class("ed3dgs")
+    config = cls.config_class.from_preset("quick")
+    config = replace(config, train=replace(config.train, iterations=60, eval_every=0))
+    runs = []
+    for _ in range(3):
+        torch.manual_seed(0)
+        expert = cls.from_scene(scene, config)
+        train(expert, scene, config.train, progress=False)
+        runs.append(torch.cat([p.detach().flatten() for p in expert.parameters()]))
+    assert all(torch.equal(runs[0], r) for r in runs[1:])
+    assert not torch.are_deterministic_algorithms_enabled()  # the caller's setting is back
