@@ -123,7 +123,10 @@ def embedding_smoothness(embedding: Tensor, neighbours: Tensor, weights: Tensor)
     Args:
         embedding: ``[N, D]``; neighbours: ``[N, k]`` indices; weights: ``[N, k]``.
     """
-    diff = embedding[:, None, :] - embedding[neighbours]  # [N, k, D]
+    # index_select, not embedding[neighbours]: the latter's CPU backward (an accumulating index_put_)
+    # sums repeated indices in thread order, so identical runs drifted apart; index_add_ does not.
+    gathered = embedding.index_select(0, neighbours.reshape(-1)).reshape(*neighbours.shape, -1)
+    diff = embedding[:, None, :] - gathered  # [N, k, D]
     return torch.sqrt(diff.square().sum(-1) * weights + 1e-20).mean()
 
 

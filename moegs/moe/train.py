@@ -30,7 +30,6 @@ from moegs.io import save_checkpoint, to_dict, write_json
 from moegs.metrics import evaluate_images
 from moegs.moe.config import RouterConfig
 from moegs.moe.model import ROUTER_CHECKPOINT, MoEGS, _check_experts, read_router, winner_shares
-from moegs.train.determinism import deterministic
 from moegs.train.evaluate import eval_views
 from moegs.train.losses import photometric
 from moegs.train.optim import Optimizers
@@ -105,7 +104,6 @@ def _state(model: MoEGS, step: int, optimizers: Optimizers, sampler: ViewSampler
     }
 
 
-@deterministic
 def train_router(
     experts: Sequence[Expert],
     scene: Scene,

@@ -34,7 +34,6 @@ from moegs.experts.base import Expert
 from moegs.io import save_checkpoint, to_dict, write_json
 from moegs.train.checkpoint import CHECKPOINT_NAME, read_checkpoint, restore_model, training_state
 from moegs.train.config import TrainConfig
-from moegs.train.determinism import deterministic
 from moegs.train.evaluate import eval_views, evaluate, render_view
 from moegs.train.losses import photometric
 from moegs.train.optim import Optimizers
@@ -176,7 +175,6 @@ class _Run:
         return float(loss.detach())
 
 
-@deterministic
 def train(
     expert: Expert,
     scene: Scene,

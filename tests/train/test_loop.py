@@ -157,9 +157,9 @@ def test_stage_switch_rebuilds_optimizers(scene, tmp_path):
     assert int(steps) == 10  # steps 10..19 since the switch (the last iteration takes no step)
 
 
-def test_runs_repeat_bit_for_bit_and_restore_the_callers_setting():
-    """E-D3DGS's neighbour loss backpropagates through ``x[idx]`` with repeated indices, whose default
-    CPU kernel sums in thread order; ``train`` runs with deterministic kernels, so runs repeat."""
+def test_runs_repeat_bit_for_bit():
+    """E-D3DGS's neighbour loss gathers embeddings with repeated indices; through ``x[idx]`` its CPU
+    backward summed in thread order and identical runs drifted apart (``index_select`` does not)."""
     from dataclasses import replace
 
     from moegs.experts import get_expert_class
@@ -175,4 +175,3 @@ def test_runs_repeat_bit_for_bit_and_restore_the_callers_setting():
         train(expert, scene, config.train, progress=False)
         runs.append(torch.cat([p.detach().flatten() for p in expert.parameters()]))
     assert all(torch.equal(runs[0], r) for r in runs[1:])
-    assert not torch.are_deterministic_algorithms_enabled()  # the caller's setting is back
