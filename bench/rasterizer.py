@@ -6,8 +6,8 @@
 
 Speeds are ratios inside ONE run (medians of the same machine and load), checked against the targets
 of the core-engine issue: compiled CPU fwd+bwd >= 3x the torch reference at 5k/128² and 20k/256²,
-single-pass K=3 >= 1.5x three separate renders (the paper reports 1.67x on a GPU), compiled-path peak
-memory < 500 MB at 100k/512².
+single-pass K=3 rendering >= 1.5x three separate renders (the paper reports 1.67x FPS on a GPU),
+compiled-path peak memory < 500 MB at 100k/512².
 """
 
 from __future__ import annotations
@@ -57,6 +57,37 @@ def _cases(data: dict) -> dict[tuple, dict]:
     return out
 
 
+def _single_pass_lines(cases: dict[tuple, dict], ms) -> list[str]:
+    """K = 3 table: separate vs single-pass medians for rendering (fwd) and training (fwd+bwd).
+
+    The target applies to rendering, which is what the paper's FPS (Table XII) measures.
+    """
+    rows = []
+    for backward in (False, True):
+        single = cases.get(("test_three_experts", 5000, 128, backward, "cpu", True))
+        separate = cases.get(("test_three_experts", 5000, 128, backward, "cpu", False))
+        if not (single and separate):
+            continue
+        speed = separate["median_ms"] / single["median_ms"]
+        target = "none (router training step)"
+        if not backward:
+            verdict = "met" if speed >= SINGLE_PASS_TARGET else "MISSED"
+            target = f"≥ {SINGLE_PASS_TARGET}×: {verdict}; paper: 1.67× FPS on a GPU"
+        rows.append(
+            f"| {'fwd+bwd (training)' if backward else 'fwd (rendering)'} | {ms(separate['median_ms'])} | "
+            f"{ms(single['median_ms'])} | {speed:.2f}× | {target} |"
+        )
+    if not rows:
+        return []
+    return [
+        "",
+        "| K = 3 experts, 5k Gaussians each, 128², compiled CPU | three `rasterize` (ms) "
+        "| one `rasterize_multi` (ms) | speed-up | target |",
+        "|---|---|---|---|---|",
+        *rows,
+    ]
+
+
 def markdown(data: dict) -> str:
     """The README table of a pytest-benchmark JSON run (see module docstring)."""
     cases = _cases(data)
@@ -90,19 +121,7 @@ def markdown(data: dict) -> str:
                 f"| {name} | {ms(ref and ref['median_ms'])} | {ms(cpu['median_ms'])} | "
                 f"{'–' if speed is None else f'{speed:.1f}×'} | {ms(cpu['peak_mb'])} | {target} |"
             )
-    single = cases.get(("test_three_experts", 5000, 128, True, "cpu", True))
-    separate = cases.get(("test_three_experts", 5000, 128, True, "cpu", False))
-    if single and separate:
-        speed = separate["median_ms"] / single["median_ms"]
-        verdict = "met" if speed >= SINGLE_PASS_TARGET else "MISSED"
-        lines += [
-            "",
-            "| K = 3 experts, 5k Gaussians each, 128², fwd+bwd, compiled CPU | median (ms) |",
-            "|---|---|",
-            f"| three separate `rasterize` calls | {ms(separate['median_ms'])} |",
-            f"| one `rasterize_multi` (single pass) | {ms(single['median_ms'])} |",
-            f"| speed-up | {speed:.2f}× (target ≥ {SINGLE_PASS_TARGET}×: {verdict}; paper: 1.67× on a GPU) |",
-        ]
+    lines += _single_pass_lines(cases, ms)
     machine = data.get("machine_info", {})
     cpu_name = machine.get("cpu", {}).get("brand_raw") or platform.processor() or machine.get("machine", "?")
     lines += [

@@ -32,23 +32,54 @@ def test_single_pass_equals_separate_renders(counts, backend, make_camera, make_
         start += len(frame)
 
 
+def _render_and_backprop(frames, camera, weights, *, single_pass: bool, backend: str):
+    """Render ``frames`` (``[K, H, W, C]`` images), backprop ``sum(images * weights)`` into fresh
+    leaf means; returns ``(images, contrib [N_total], [grad means_k])``."""
+    leaves = [f.means.detach().clone().requires_grad_(True) for f in frames]
+    for f, m in zip(frames, leaves, strict=True):
+        f.means = m
+    if single_pass:
+        out = rasterize_multi(frames, camera, return_stats=True, backend=backend)
+        images, contrib = out.images, out.info["contrib"]
+    else:
+        outs = [rasterize(f, camera, return_stats=True, backend=backend) for f in frames]
+        images = torch.stack([o.image for o in outs])
+        contrib = torch.cat([o.info["contrib"] for o in outs])
+    (images * weights).sum().backward()
+    return images.detach(), contrib, [m.grad for m in leaves]
+
+
 def test_single_pass_gradients_equal_separate_renders(make_camera, make_frame):
     cam = make_camera(20, 16)
     frames = _experts(make_frame, cam, (15, 20), dtype=torch.float64)
     weights = torch.rand(2, 16, 20, 3, dtype=torch.float64)
-    grads = {}
-    for mode in ("multi", "separate"):
-        leaves = [f.means.detach().clone().requires_grad_(True) for f in frames]
-        for f, m in zip(frames, leaves, strict=True):
-            f.means = m
-        if mode == "multi":
-            images = rasterize_multi(frames, cam, backend="torch").images
-        else:
-            images = torch.stack([rasterize(f, cam, backend="torch").image for f in frames])
-        (images * weights).sum().backward()
-        grads[mode] = [m.grad for m in leaves]
-    for a, b in zip(grads["multi"], grads["separate"], strict=True):
+    _, _, multi = _render_and_backprop(frames, cam, weights, single_pass=True, backend="torch")
+    _, _, separate = _render_and_backprop(frames, cam, weights, single_pass=False, backend="torch")
+    for a, b in zip(multi, separate, strict=True):
         torch.testing.assert_close(a, b)
+
+
+def test_kernel_skips_a_finished_expert_without_changing_anything(
+    make_camera, make_frame, require_cpu_kernel
+):
+    """Expert 0 is a wall of opaque splats in front: it finishes most pixels early, so the compiled
+    kernel skips its remaining Gaussians (forward) and those behind its last contributors (backward).
+    Single-pass images, contributions and gradients must still equal separate reference renders."""
+    cam = make_camera(48, 32)
+    wall = make_frame(400, cam, scale=0.4, depth=(2.0, 2.5), opacity=(0.95, 0.99), seed=1)
+    scattered = make_frame(300, cam, depth=(1.5, 6.0), seed=2)
+    assert (rasterize(wall, cam, backend="torch").alpha > 0.999).float().mean() > 0.5  # T near 1e-4: finished
+    weights = torch.rand(2, 32, 48, 3, generator=torch.Generator().manual_seed(0))
+    img_m, con_m, grad_m = _render_and_backprop(
+        [wall, scattered], cam, weights, single_pass=True, backend="cpu"
+    )
+    img_s, con_s, grad_s = _render_and_backprop(
+        [wall, scattered], cam, weights, single_pass=False, backend="torch"
+    )
+    torch.testing.assert_close(img_m, img_s, atol=1e-5, rtol=0)
+    torch.testing.assert_close(con_m, con_s, atol=1e-4, rtol=1e-5)
+    for a, b in zip(grad_m, grad_s, strict=True):
+        torch.testing.assert_close(a, b, atol=1e-5 * b.abs().max().item(), rtol=1e-4)  # as test_cpu_kernel
 
 
 def test_backgrounds_shared_or_per_expert(make_camera, make_frame):

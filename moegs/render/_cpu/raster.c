@@ -281,7 +281,8 @@ MOEGS_API int moegs_forward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t 
         float *acc = (float *)malloc((size_t)(G * npmax * d) * sizeof(float));
         int32_t *lst = (int32_t *)malloc((size_t)(G * npmax) * sizeof(int32_t));
         unsigned char *done = (unsigned char *)malloc((size_t)(G * npmax));
-        const int ok = T && acc && lst && done;
+        int64_t *live_g = (int64_t *)malloc((size_t)G * sizeof(int64_t));
+        const int ok = T && acc && lst && done && live_g;
         if (!ok) {
 #pragma omp atomic write
             err = 1;
@@ -296,15 +297,19 @@ MOEGS_API int moegs_forward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t 
             for (int64_t s = 0; s < S; ++s) { T[s] = 1.0; lst[s] = -1; done[s] = 0; }
             memset(acc, 0, (size_t)(S * d) * sizeof(float));
             int64_t live = S; /* (group, pixel) pairs not finished yet */
+            for (int gi = 0; gi < G; ++gi) live_g[gi] = npix; /* the same, per group */
             const int64_t start = tile_off[t], end = tile_off[t + 1];
             int64_t pos = start;
             for (; pos < end && live > 0; ++pos) {
                 const int32_t k = list[pos];
+                const int32_t gk = grp[k];
+                /* every pixel of this Gaussian's group is finished: it composites nothing here
+                 * (a separate render of the group would already have retired the tile) */
+                if (live_g[gk] == 0) { slot[pos] = 0.0f; continue; }
                 const float *g = geo + (int64_t)k * GEO;
                 const float mx = g[0], my = g[1], ca = g[2], cb = g[3], cc = g[4], op = g[5];
                 const float pcut = g[6];
                 const int32_t *b = box + 4 * (int64_t)k;
-                const int32_t gk = grp[k];
                 const float *ck = col + (int64_t)k * d;
                 /* box of the Gaussian intersected with the tile, in tile-local pixels */
                 const int lx0 = imax(b[0], tx0) - tx0, lx1 = imin(b[1], tx0 + tw - 1) - tx0;
@@ -328,6 +333,7 @@ MOEGS_API int moegs_forward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t 
                         if (tn < T_MIN) { /* group finished here; this Gaussian is not composited */
                             done[s] = 1;
                             --live;
+                            --live_g[gk];
                             continue;
                         }
                         const float w = a * (float)T[s];
@@ -354,7 +360,7 @@ MOEGS_API int moegs_forward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t 
                         last[o] = lst[s];
                     }
         }
-        free(T); free(acc); free(lst); free(done);
+        free(T); free(acc); free(lst); free(done); free(live_g);
     }
     if (err) { free(slot); return ERR_NOMEM; }
 
@@ -415,7 +421,8 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
         float *ga_loc = (float *)malloc((size_t)(G * npmax) * sizeof(float));
         int32_t *lst = (int32_t *)malloc((size_t)(G * npmax) * sizeof(int32_t));
         double *gcol = (double *)malloc((size_t)d * sizeof(double));
-        const int ok = T && Tf && B && gi_loc && ga_loc && lst && gcol;
+        int32_t *maxlast_g = (int32_t *)malloc((size_t)G * sizeof(int32_t));
+        const int ok = T && Tf && B && gi_loc && ga_loc && lst && gcol && maxlast_g;
         if (!ok) {
 #pragma omp atomic write
             err = 1;
@@ -429,17 +436,20 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
             const int64_t start = tile_off[t], end = tile_off[t + 1];
             /* load the per-pixel state of the tile */
             int32_t maxlast = -1;
-            for (int g = 0; g < G; ++g)
+            for (int g = 0; g < G; ++g) {
+                maxlast_g[g] = -1;
                 for (int ly = 0; ly < th; ++ly)
                     for (int lx = 0; lx < tw; ++lx) {
                         const int64_t s = (int64_t)g * npix + ly * tw + lx;
                         const int64_t o = ((int64_t)g * H + ty0 + ly) * W + tx0 + lx;
                         T[s] = Tf[s] = tfinal[o];
                         lst[s] = last[o];
-                        if (last[o] > maxlast) maxlast = last[o];
+                        if (last[o] > maxlast_g[g]) maxlast_g[g] = last[o];
                         ga_loc[s] = grad_alpha[o];
                         memcpy(gi_loc + s * d, grad_image + o * d, (size_t)d * sizeof(float));
                     }
+                if (maxlast_g[g] > maxlast) maxlast = maxlast_g[g];
+            }
             memset(B, 0, (size_t)((int64_t)G * npix * d) * sizeof(double));
             /* Gaussians after the last contributor of every pixel get nothing from this tile */
             for (int64_t pos = start + maxlast + 1; pos < end; ++pos)
@@ -448,11 +458,16 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
             for (int32_t j = maxlast; j >= 0; --j) {
                 const int64_t pos = start + j;
                 const int32_t k = list[pos];
+                const int32_t gk = grp[k];
+                float *sl = slot + pos * stride;
+                if (j > maxlast_g[gk]) { /* behind the last contributor of all its group's pixels */
+                    memset(sl, 0, (size_t)stride * sizeof(float));
+                    continue;
+                }
                 const float *g = geo + (int64_t)k * GEO;
                 const float mx = g[0], my = g[1], ca = g[2], cb = g[3], cc = g[4], op = g[5];
                 const float pcut = g[6];
                 const int32_t *b = box + 4 * (int64_t)k;
-                const int32_t gk = grp[k];
                 const float *ck = col + (int64_t)k * d;
                 const int lx0 = imax(b[0], tx0) - tx0, lx1 = imin(b[1], tx0 + tw - 1) - tx0;
                 const int ly0 = imax(b[2], ty0) - ty0, ly1 = imin(b[3], ty0 + th - 1) - ty0;
@@ -498,14 +513,13 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
                         gmy += ((double)cb * dx + (double)cc * dy) * dp;
                     }
                 }
-                float *sl = slot + pos * stride;
                 sl[0] = (float)gmx; sl[1] = (float)gmy;
                 sl[2] = (float)ga; sl[3] = (float)gb; sl[4] = (float)gc;
                 sl[5] = (float)gop;
                 for (int64_t c = 0; c < d; ++c) sl[6 + c] = (float)gcol[c];
             }
         }
-        free(T); free(Tf); free(B); free(gi_loc); free(ga_loc); free(lst); free(gcol);
+        free(T); free(Tf); free(B); free(gi_loc); free(ga_loc); free(lst); free(gcol); free(maxlast_g);
     }
     if (err) { free(slot); return ERR_NOMEM; }
 
