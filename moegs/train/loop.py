@@ -36,6 +36,7 @@ from moegs.train.checkpoint import CHECKPOINT_NAME, read_checkpoint, restore_mod
 from moegs.train.config import TrainConfig
 from moegs.train.evaluate import eval_views, evaluate, render_view
 from moegs.train.losses import photometric
+from moegs.train.memory import keep_freed_memory
 from moegs.train.optim import Optimizers
 from moegs.train.sampler import ViewSampler
 
@@ -211,6 +212,7 @@ def train(
         NonFiniteError: on NaN/Inf in a loss, gradient or parameter; the last checkpoint is kept.
     """
     config = config or expert.config.train
+    keep_freed_memory()  # no page faults for the buffers every step allocates again
     out = Path(out_dir) if out_dir is not None else None
     ckpt = out / CHECKPOINT_NAME if out is not None else None
     run = _Run(expert, scene, config, loss)
