@@ -11,6 +11,7 @@ from __future__ import annotations
 import base64
 import html
 import json
+import os
 import platform
 import time
 from dataclasses import asdict, dataclass, field
@@ -141,10 +142,8 @@ def _claim_counts(rep: SpecReport) -> str:
 
 
 def _rel(path: str, base: Path) -> str:
-    try:
-        return str(Path(path).resolve().relative_to(base.resolve()))
-    except ValueError:
-        return path
+    """``path`` relative to ``base`` (``../tables/tab03.tex`` from ``reports/``), so links survive a move."""
+    return os.path.relpath(Path(path).resolve(), base.resolve())
 
 
 def render_markdown(reports: list[SpecReport], header: dict[str, Any], base: Path) -> str:

@@ -133,6 +133,8 @@ def test_plots_and_report(run):
     assert pngs and all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
     md = (out / "reports" / "REPORT.md").read_text()
     assert f"## {spec.id}" in md and "reduced scale" in md
+    assert f"**LaTeX:** `../tables/{spec.id}.tex`" in md  # relative links: the report can move
+    assert f"](figures/{spec.id}" in md
     html = (out / "reports" / "REPORT.html").read_text()
     assert "data:image/png;base64," in html
     summary = json.loads((out / "reports" / "summary.json").read_text())
