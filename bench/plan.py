@@ -114,13 +114,14 @@ def _slots(spec: Spec, row: Row, scenes: list[SceneRef], seeds: list[int], prese
     status = f"{NOT_IMPLEMENTED}: {', '.join(gone)}" if gone else "planned"
     out = []
     for scene in scenes:
+        expert_config = get_dataset(scene.dataset).expert_config
         for seed in seeds:
             for column, budget in _variants(spec):
                 params = dict(row.params)
                 if budget is not None and budget != 1.0:
                     params["budget"] = budget
-                if get_dataset(scene.dataset).expert_config:
-                    params["expert_config"] = get_dataset(scene.dataset).expert_config
+                if expert_config:
+                    params["expert_config"] = expert_config
                 task = (
                     None
                     if gone

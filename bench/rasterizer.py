@@ -57,7 +57,11 @@ def _cases(data: dict) -> dict[tuple, dict]:
     return out
 
 
-def _single_pass_lines(cases: dict[tuple, dict], ms) -> list[str]:
+def _ms(value: float | None) -> str:
+    return "–" if value is None else f"{value:.1f}"
+
+
+def _single_pass_lines(cases: dict[tuple, dict]) -> list[str]:
     """K = 3 table: separate vs single-pass medians for rendering (fwd) and training (fwd+bwd).
 
     The target applies to rendering, which is what the paper's FPS (Table XII) measures.
@@ -74,8 +78,8 @@ def _single_pass_lines(cases: dict[tuple, dict], ms) -> list[str]:
             verdict = "met" if speed >= SINGLE_PASS_TARGET else "MISSED"
             target = f"≥ {SINGLE_PASS_TARGET}×: {verdict}; paper: 1.67× FPS on a GPU"
         rows.append(
-            f"| {'fwd+bwd (training)' if backward else 'fwd (rendering)'} | {ms(separate['median_ms'])} | "
-            f"{ms(single['median_ms'])} | {speed:.2f}× | {target} |"
+            f"| {'fwd+bwd (training)' if backward else 'fwd (rendering)'} | {_ms(separate['median_ms'])} | "
+            f"{_ms(single['median_ms'])} | {speed:.2f}× | {target} |"
         )
     if not rows:
         return []
@@ -91,9 +95,6 @@ def _single_pass_lines(cases: dict[tuple, dict], ms) -> list[str]:
 def markdown(data: dict) -> str:
     """The README table of a pytest-benchmark JSON run (see module docstring)."""
     cases = _cases(data)
-
-    def ms(value):
-        return "–" if value is None else f"{value:.1f}"
 
     lines = [
         "| case | torch reference (ms) | compiled CPU (ms) | speed-up | CPU render memory (MB) | target |",
@@ -118,10 +119,10 @@ def markdown(data: dict) -> str:
                 )
             name = f"{n // 1000}k Gaussians, {res}², {'fwd+bwd' if backward else 'fwd'}"
             lines.append(
-                f"| {name} | {ms(ref and ref['median_ms'])} | {ms(cpu['median_ms'])} | "
-                f"{'–' if speed is None else f'{speed:.1f}×'} | {ms(cpu['peak_mb'])} | {target} |"
+                f"| {name} | {_ms(ref and ref['median_ms'])} | {_ms(cpu['median_ms'])} | "
+                f"{'–' if speed is None else f'{speed:.1f}×'} | {_ms(cpu['peak_mb'])} | {target} |"
             )
-    lines += _single_pass_lines(cases, ms)
+    lines += _single_pass_lines(cases)
     machine = data.get("machine_info", {})
     cpu_name = machine.get("cpu", {}).get("brand_raw") or platform.processor() or machine.get("machine", "?")
     lines += [

@@ -38,4 +38,4 @@ def keep_freed_memory() -> bool:
         return False
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     mallopt.restype = ctypes.c_int
-    return all([mallopt(param, value) == 1 for param, value in SETTINGS.items()])
+    return all([mallopt(param, value) == 1 for param, value in SETTINGS.items()])  # a list: apply every one
