@@ -35,15 +35,19 @@ class Context:
         print(f"[bench] {message}", file=sys.stderr, flush=True)
 
     # ------------------------------------------------------------------ scenes
-    def scene(self, task: Task):
-        """The ``moegs.Scene`` of ``task`` (loaded once per process)."""
+    def scene(self, task: Task, background: str | None = None):
+        """The ``moegs.Scene`` of ``task`` (loaded once per process), on ``background`` when given (the
+        recipe's: D-NeRF composites its images on it)."""
         from bench.keys import canonical_json
         from bench.scenes import load
 
-        key = task.scene + canonical_json(dict(task.scene_kwargs))
+        kwargs = dict(task.scene_kwargs)
+        if background is not None:
+            kwargs["background"] = background
+        key = task.scene + canonical_json(kwargs)
         if key not in self._scenes:
-            self.log(f"loading scene {task.scene} {dict(task.scene_kwargs)}")
-            self._scenes[key] = load(task.scene, dict(task.scene_kwargs))
+            self.log(f"loading scene {task.scene} {kwargs}")
+            self._scenes[key] = load(task.scene, kwargs)
         return self._scenes[key]
 
     # ------------------------------------------------------------------ artefacts

@@ -80,6 +80,9 @@ DATASETS: dict[str, Dataset] = {
             },
             stand_in="n3v_like",  # closest synthetic layout: forward-facing multi-view rig
             paper_protocol={"resolution_scale": 1.0},  # full 2048x1088, 50-frame windows (loader default)
+            # MoE-GS trains STG with SH colours on Technicolor too (scripts_MoE-GS/train_E3_tech.sh ->
+            # Pretrained/technicolor/STG_shs; thirdparty/polynomial/scene_tech/oursfull.py)
+            expert_config={"stg": {"color": "sh", "antialiased": True}},
         ),
         Dataset(
             "hypernerf",

@@ -117,7 +117,7 @@ def _slots(spec: Spec, row: Row, scenes: list[SceneRef], seeds: list[int], prese
         expert_config = get_dataset(scene.dataset).expert_config
         for seed in seeds:
             for column, budget in _variants(spec):
-                params = dict(row.params)
+                params = {**row.params, "dataset": scene.dataset}
                 if budget is not None and budget != 1.0:
                     params["budget"] = budget
                 if expert_config:

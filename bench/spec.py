@@ -63,8 +63,10 @@ METRICS: dict[str, Metric] = {
         # region metrics (static / dynamic masks) for the ROI and MoDE trade-off figures
         Metric("PSNR static", "psnr_static", True, 2, "dB"),
         Metric("SSIM static", "ssim_static", True, 3),
+        Metric("LPIPS static", "lpips_static", False, 3),
         Metric("PSNR dynamic", "psnr_dynamic", True, 2, "dB"),
         Metric("SSIM dynamic", "ssim_dynamic", True, 3),
+        Metric("LPIPS dynamic", "lpips_dynamic", False, 3),
         # geometry and motion analyses (figures)
         Metric("MDC", "mdc", False, 4),
         Metric("Coherence", "coherence", True, 3),
@@ -93,13 +95,16 @@ class Row:
     """One row of a table: a method computed by the cell kind ``kind`` with ``params``.
 
     ``name`` is the row name exactly as in ``tables/paper/<id>.json`` (or a new name for rows the
-    paper does not print); ``label`` is the LaTeX text (defaults to ``name``).
+    paper does not print); ``label`` is the LaTeX text (defaults to ``name``). ``variant`` marks a row
+    the paper does not have (a named variant of one of its rows, e.g. the router with the paper's
+    wording instead of the authors' code conventions); it follows the paper's rows.
     """
 
     name: str
     kind: str
     params: Mapping[str, Any] = field(default_factory=dict)
     label: str = ""
+    variant: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "params", _frozen(self.params))
@@ -126,6 +131,17 @@ class Claim:
     def __post_init__(self) -> None:
         object.__setattr__(self, "args", _frozen(self.args))
 
+    def on_dynamic_region(self) -> Claim | None:
+        """The same claim on the dynamic region's PSNR, for claims about PSNR (None otherwise)."""
+        if self.check not in DYNAMIC_TWINS or self.args.get("metric", "PSNR") != "PSNR":
+            return None
+        args = {**self.args, "metric": "PSNR dynamic"}
+        return Claim(f"{self.id}-dynamic", f"{self.text} [dynamic region]", self.check, args, self.source)
+
+
+DYNAMIC_TWINS = ("better", "best", "order", "exceeds", "within", "monotone", "differs_across")
+"""Checks that compare one metric across rows, so that they also apply to the dynamic region's PSNR."""
+
 
 @dataclass(frozen=True)
 class Spec:
@@ -149,6 +165,8 @@ class Spec:
         figure: True for figure specs (no LaTeX table).
         scenes: restrict to these loader scene names (figures about named scenes); empty = all.
         notes: assumptions made by the spec (what the paper leaves unsaid).
+        motion: the paper's claims here are about motion: each PSNR claim is also checked on the
+            dynamic region ("PSNR dynamic").
     """
 
     id: str
@@ -167,6 +185,7 @@ class Spec:
     figure: bool = False
     scenes: tuple[str, ...] = ()
     notes: str = ""
+    motion: bool = False
 
     def __post_init__(self) -> None:
         if self.axis not in AXES:
@@ -178,6 +197,11 @@ class Spec:
             raise ValueError(f"{self.id}: duplicate row names {names}")
         object.__setattr__(self, "column_metric", _frozen(self.column_metric))
         object.__setattr__(self, "budgets", _frozen(self.budgets))
+
+    def checked_claims(self) -> list[Claim]:
+        """The claims the report checks: the paper's, and with ``motion`` their dynamic-region twins."""
+        twins = [c.on_dynamic_region() for c in self.claims] if self.motion else []
+        return [*self.claims, *(t for t in twins if t is not None)]
 
     def row(self, name: str) -> Row:
         for r in self.rows:
@@ -197,10 +221,12 @@ def expert(name: str, paper_name: str | None = None, **params: Any) -> Row:
     return Row(name, "expert", {"expert": key, **params})
 
 
-def moe(name: str, experts: tuple[str, ...] | int, router: str = "vapr", **params: Any) -> Row:
+def moe(
+    name: str, experts: tuple[str, ...] | int, router: str = "vapr", variant: bool = False, **params: Any
+) -> Row:
     """MoE-GS over ``experts`` (registry names or ``N`` for the paper's fixed set)."""
     chosen = MOE_SETS[experts] if isinstance(experts, int) else tuple(experts)
-    return Row(name, "moe", {"experts": list(chosen), "router": router, **params})
+    return Row(name, "moe", {"experts": list(chosen), "router": router, **params}, variant=variant)
 
 
 def mode(name: str, base: str, added: str, **params: Any) -> Row:

@@ -34,11 +34,16 @@ def _cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
-def _load_scene(name: str, resolution_scale: float | None):
+def _load_scene(meta: dict):
+    """The scene of a run's ``config.json``, loaded as it was for training."""
     from moegs.data import load_scene
 
-    kwargs = {} if resolution_scale is None else {"resolution_scale": resolution_scale}
-    return load_scene(name, **kwargs)
+    recipe = meta.get("recipe") or {}
+    kwargs = {"background": recipe["background"]} if recipe.get("background") else {}
+    scale = meta["train"]["resolution_scale"]
+    if scale is not None and not meta["scene"].startswith("synthetic:"):
+        kwargs["resolution_scale"] = scale
+    return load_scene(meta["scene"], **kwargs)
 
 
 def _run_dir(path: str) -> tuple[Path, dict]:
@@ -55,32 +60,45 @@ def _load_run(path: str):
     from moegs.train.checkpoint import load_expert
 
     run, meta = _run_dir(path)
-    scene = _load_scene(meta["scene"], meta["train"]["resolution_scale"])
+    scene = _load_scene(meta)
     expert, _ = load_expert(run, scene)
     return run, meta, scene, expert
 
 
+def parse_overrides(items: list[str]) -> dict[str, object]:
+    """``["train.iterations=100", "strategy.reset_every=300"]`` -> dotted field -> value (JSON values;
+    anything that is not JSON stays a string)."""
+    out: dict[str, object] = {}
+    for item in items:
+        field, sep, text = item.partition("=")
+        if not sep or not field:
+            raise ValueError(f"--set expects FIELD=VALUE (e.g. train.iterations=100), got {item!r}")
+        try:
+            out[field] = json.loads(text)
+        except json.JSONDecodeError:
+            out[field] = text
+    return out
+
+
 def _cmd_train(args: argparse.Namespace) -> int:
-    from dataclasses import replace
+    from moegs.data import load_scene
+    from moegs.recipes import config_for
+    from moegs.train.entry import train_recipe
 
-    from moegs.experts import get_expert_class
-    from moegs.train.loop import train
-
-    cls = get_expert_class(args.expert)
-    config = cls.config_class.from_preset(args.preset)
-    overrides = {"seed": args.seed}
+    overrides = parse_overrides(args.set or [])
+    overrides["train.seed"] = args.seed
     if args.iterations is not None:
-        overrides["iterations"] = args.iterations
+        overrides["train.iterations"] = args.iterations
     if args.resolution_scale is not None:
-        overrides["resolution_scale"] = args.resolution_scale
-    config = replace(config, train=replace(config.train, **overrides))
-    scene = _load_scene(args.scene, config.train.resolution_scale)
+        overrides["train.resolution_scale"] = args.resolution_scale
+    recipe = config_for(args.expert, args.scene, args.preset, overrides=overrides)
+    scene = load_scene(args.scene, **recipe.load_kwargs)
     print(scene.summary())
+    print("recipe: " + "; ".join(recipe.steps))
     out = Path(
         args.out or Path("runs") / f"{args.expert}_{args.scene.replace(':', '_')}_{args.preset}_s{args.seed}"
     )
-    expert = cls.from_scene(scene, config)
-    result = train(expert, scene, out_dir=out, resume=not args.no_resume, progress=not args.quiet)
+    _, result = train_recipe(recipe, scene, out, resume=not args.no_resume, progress=not args.quiet)
     test = result["test"] or {}
     print(
         f"{args.expert} on {scene.name}: {result['num_gaussians']} Gaussians, "
@@ -176,11 +194,22 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train", help="train one expert on one scene")
     p.add_argument("--expert", required=True, help="registry name (see `moegs list`)")
     p.add_argument("--scene", required=True, help="<dataset>:<scene>, e.g. dnerf:mutant")
-    p.add_argument("--preset", default="quick", help="config preset: quick (CPU minutes) or paper")
+    p.add_argument(
+        "--preset",
+        default="quick",
+        choices=["quick", "paper"],
+        help="recipe preset: quick (CPU minutes) or paper (the original's recipe for the scene's dataset)",
+    )
     p.add_argument("--out", help="run folder (default runs/<expert>_<scene>_<preset>_s<seed>)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--iterations", type=int, help="override the preset's number of iterations")
     p.add_argument("--resolution-scale", type=float, help="override the preset's image scale")
+    p.add_argument(
+        "--set",
+        nargs="*",
+        metavar="FIELD=VALUE",
+        help="override config fields by dotted name, e.g. --set strategy.densify_every=50 train.batch_size=1",
+    )
     p.add_argument(
         "--no-resume", action="store_true", help="start over even if the run folder has a checkpoint"
     )

@@ -4,11 +4,12 @@
     moegs compare --experts static,stg,ex4dgs --scene dnerf:mutant --out runs/compare-mutant
     moegs compare --experts all --scene dnerf:mutant --readme README.md   # + the README results section
 
-Each expert is built from its preset (``from_scene``) and trained with the shared training loop into
-``<out>/<expert>/``; the loop's ``metrics.json`` there is the expert's result, so a finished expert is
-skipped on the next call and an interrupted one resumes from its checkpoint. The table (PSNR / SSIM /
-LPIPS on the scene's test views, training seconds, final number of Gaussians) is written as
-``<out>/table.md`` and ``<out>/table.json``.
+Each expert is built from its recipe for the scene (``moegs.recipes.config_for``: the original's
+preset for the dataset, its per-scene values, the preset's reductions) and trained with the shared
+training loop into ``<out>/<expert>/``; the loop's ``metrics.json`` there is the expert's result, so a
+finished expert is skipped on the next call and an interrupted one resumes from its checkpoint. The
+table (PSNR / SSIM / LPIPS on the scene's test views, training seconds, final number of Gaussians) is
+written as ``<out>/table.md`` and ``<out>/table.json``.
 
 ``--readme README.md`` also rewrites the section between ``<!-- results:<scene> -->`` and
 ``<!-- /results:<scene> -->`` of that markdown file (``<scene>`` is the part after the colon, e.g.
@@ -17,8 +18,8 @@ full-scale numbers of the same scene: the experts' own papers (``tables/paper/or
 MoE-GS paper (``tables/paper/tabNN.json``), each with its source. Nothing in that section is typed by
 hand: measured numbers come from the runs, published ones from ``tables/paper/`` (``PUBLISHED``).
 
-Scene loading: each expert's ``TrainConfig.resolution_scale``; ``--frames`` picks a frame window on
-datasets that have one (the ``quick`` preset defaults to the first ``QUICK_FRAMES`` frames there).
+Scene loading: each recipe's background and resolution; ``--frames`` picks a frame window on datasets
+that have one (the ``quick`` preset defaults to the first ``QUICK_FRAMES`` frames there).
 """
 
 from __future__ import annotations
@@ -70,6 +71,14 @@ def _finished(path: Path) -> dict | None:
     return result if result.get("completed") and result.get("test") else None
 
 
+def scene_kwargs(recipe, frames: tuple[int, int] | None) -> dict[str, Any]:
+    """``load_scene`` arguments of a run: the recipe's (background, resolution) and the frame window."""
+    kwargs = dict(recipe.load_kwargs)
+    if frames is not None:
+        kwargs["frames"] = frames
+    return kwargs
+
+
 def run_expert(
     name: str,
     scene_name: str,
@@ -79,26 +88,18 @@ def run_expert(
     scenes: dict,
     progress: bool,
 ) -> dict:
-    """Train (or resume) one expert; returns the loop's result dict."""
-    import torch
-
+    """Train (or resume) one expert with its recipe (``moegs.recipes.config_for``); returns the loop's
+    result. ``scenes`` caches loaded scenes by their loader arguments."""
     from moegs.data import load_scene
-    from moegs.experts import get_expert_class
-    from moegs.train.loop import train
+    from moegs.recipes import config_for
+    from moegs.train.entry import train_recipe
 
-    cls = get_expert_class(name)
-    config = cls.config_class.from_preset(preset)
-    key = config.train.resolution_scale
+    recipe = config_for(name, scene_name, preset)
+    kwargs = scene_kwargs(recipe, frames)
+    key = json.dumps(kwargs, sort_keys=True, default=str)
     if key not in scenes:
-        kwargs: dict[str, Any] = {} if key is None else {"resolution_scale": key}
-        if frames is not None:
-            kwargs["frames"] = frames
         scenes[key] = load_scene(scene_name, **kwargs)
-    scene = scenes[key]
-    # Networks are initialised from torch's global generator in ``from_scene`` (``train`` seeds it only
-    # afterwards): seed it here so a result does not depend on which experts ran before in this process.
-    torch.manual_seed(config.train.seed)
-    return train(cls.from_scene(scene, config), scene, out_dir=out, progress=progress)
+    return train_recipe(recipe, scenes[key], out, progress=progress)[1]
 
 
 def _image_size(test: dict) -> str | None:

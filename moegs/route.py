@@ -17,16 +17,19 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
-ROUTER_PRESETS = {"quick": "quick", "paper": "paper"}
-"""Router preset used with each expert preset."""
-
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--experts", required=True, help="comma-separated registry names, e.g. deformable,grid4d")
     p.add_argument("--scene", required=True, help="<dataset>:<scene>, e.g. dnerf:mutant")
     p.add_argument("--preset", default="quick", help="experts' and router's preset: quick or paper")
     p.add_argument("--router", default="vapr", help="vapr (volume-aware pixel), pixel or volume")
-    p.add_argument("--router-preset", help="router preset (default: --preset); 'code' = authors' conventions")
+    p.add_argument(
+        "--convention",
+        default="code",
+        choices=["code", "paper"],
+        help="router conventions: code (the authors' code, which produced the paper's numbers) or paper "
+        "(the paper's wording)",
+    )
     p.add_argument("--iterations", type=int, help="override the router's iterations")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="output folder")
@@ -35,23 +38,40 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress: bool):
-    """Train (or reuse) each expert; returns ``(experts, scene)`` on one scene of one resolution."""
-    from moegs.compare import _frames, run_expert
-    from moegs.experts import get_expert_class
+    """Train (or reuse) each expert with its recipe; returns ``(experts, scene)``: the scene loaded as the
+    first expert's recipe loads it (experts on RGBA datasets must agree on the background)."""
+    from moegs.compare import _frames, run_expert, scene_kwargs
+    from moegs.data import load_scene
+    from moegs.recipes import config_for
     from moegs.train.checkpoint import load_expert
 
-    scales = {get_expert_class(n).config_class.from_preset(preset).train.resolution_scale for n in names}
+    recipes = [config_for(n, scene_name, preset) for n in names]
+    scales = {r.config.train.resolution_scale for r in recipes}
     if len(scales) != 1:
         raise ValueError(
             f"experts {names} train at different resolution scales {sorted(map(str, scales))} with preset "
             f"{preset!r}; a router blends images of one size"
         )
-    scenes: dict = {}
+    backgrounds = {r.background for r in recipes}
+    if len(backgrounds) > 1 and composites_background(scene_name):
+        which = ", ".join(f"{r.expert}: {r.background}" for r in recipes)
+        raise ValueError(
+            f"experts {names} train on different backgrounds ({which}) and {scene_name}'s RGBA images are "
+            "composited on the background; route experts that agree"
+        )
     frames = _frames(scene_name, preset, None)
+    scenes: dict = {}
     for name in names:
         run_expert(name, scene_name, preset, out / name, frames, scenes, progress)
-    scene = next(iter(scenes.values()))
+    scene = load_scene(scene_name, **scene_kwargs(recipes[0], frames))
     return [load_expert(out / name, scene)[0] for name in names], scene
+
+
+def composites_background(scene_name: str) -> bool:
+    """Whether the scene's images have alpha composited on the background (D-NeRF and its stand-in)."""
+    from moegs.recipes import dataset_of
+
+    return dataset_of(scene_name) == "dnerf"
 
 
 def write_gate_figures(model, scene, folder: Path, count: int) -> list[Path]:
@@ -76,14 +96,14 @@ def write_gate_figures(model, scene, folder: Path, count: int) -> list[Path]:
 
 
 def main(args: argparse.Namespace) -> int:
-    from moegs.moe import RouterConfig, load_moe, train_router
+    from moegs.moe import RouterConfig, load_moe, router_preset, train_router
 
     names = [n.strip() for n in args.experts.split(",") if n.strip()]
     if len(names) < 1:
         raise ValueError("--experts needs at least one expert name")
     out = Path(args.out or Path("runs") / f"route_{args.scene.replace(':', '_')}_{args.preset}_s{args.seed}")
     experts, scene = _experts(names, args.scene, args.preset, out, not args.quiet)
-    config = RouterConfig.from_preset(args.router_preset or ROUTER_PRESETS.get(args.preset, args.preset))
+    config = RouterConfig.from_preset(router_preset(args.preset, args.convention))
     config = replace(config, variant=args.router, seed=args.seed)
     if args.iterations is not None:
         config = replace(config, iterations=args.iterations)

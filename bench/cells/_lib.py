@@ -1,4 +1,4 @@
-"""Adapters to the library used by several kinds: expert build tasks, loading and rendering experts."""
+"""Adapters to the library used by several kinds: recipes of build tasks, loading and rendering experts."""
 
 from __future__ import annotations
 
@@ -6,12 +6,23 @@ from typing import Any
 
 from bench.tasks import Task
 
+RUN_FIELDS = (
+    "train.seed",
+    "train.max_eval_views",
+    "train.metric_profile",
+    "train.eval_every",
+    "train.checkpoint_every",
+)
+"""Fields the bench sets on every recipe (seed and evaluation protocol); everything else is the
+resolver's (``moegs.recipes.config_for``), plus a dataset's conventions (``params["config"]``) and the
+bench preset's iteration override or budget."""
+
 
 def expert_task(task: Task, expert: str, budget: float | None = None) -> Task:
-    """Build task of a trained ``expert`` on ``task``'s scene/preset/seed (budget 1.0 = default run);
-    the config fields that ``task``'s dataset sets for this expert (``params["expert_config"]``) go with
-    it as ``params["config"]``."""
-    params: dict[str, Any] = {"expert": expert}
+    """Build task of a trained ``expert`` on ``task``'s scene/preset/seed/dataset (budget 1.0 = default
+    run); the config fields that ``task``'s dataset sets for this expert (``params["expert_config"]``)
+    go with it as ``params["config"]``."""
+    params: dict[str, Any] = {"expert": expert, "dataset": task.params.get("dataset")}
     if budget is not None and float(budget) != 1.0:
         params["budget"] = float(budget)
     config = task.params.get("expert_config", {}).get(expert)
@@ -20,13 +31,60 @@ def expert_task(task: Task, expert: str, budget: float | None = None) -> Task:
     return task.derive("build", "expert", params)
 
 
-def load_trained_expert(ctx: Any, build: Task):
-    """The trained expert of a build task, in eval mode, on the task's scene."""
+def recipe_of(ctx: Any, task: Task, expert: str | None = None, extra: dict | None = None, steps=None):
+    """The ``moegs.recipes.Recipe`` a build task trains with: the resolver's recipe at the bench preset's
+    expert preset, the dataset's conventions (``params["config"]``) and ``extra`` fields, the preset's
+    iteration override (``steps``, default ``train_steps``) times the budget (schedules unchanged: the run
+    is cut short) and the run fields (``RUN_FIELDS``). ``expert`` defaults to ``params["expert"]``."""
+    from moegs.recipes import config_for
+
+    p = ctx.preset
+    name = expert or task.params["expert"]
+    overrides = {**task.params.get("config", {}), **(extra or {})}
+    dataset = task.params.get("dataset")
+    base = config_for(name, task.scene, p.expert_preset, dataset=dataset, overrides=overrides)
+    overrides["train.iterations"] = p.steps(
+        base.config.train.iterations,
+        p.train_steps if steps is None else steps,
+        task.params.get("budget", 1.0),
+    )
+    overrides.update(
+        {
+            "train.seed": task.seed,
+            "train.max_eval_views": p.test_views,
+            "train.metric_profile": p.metric_profile,
+            "train.eval_every": 0,
+            "train.checkpoint_every": p.checkpoint_every,
+        }
+    )
+    return config_for(name, task.scene, p.expert_preset, dataset=dataset, overrides=overrides)
+
+
+def load_trained_expert(ctx: Any, build: Task, scene: Any = None):
+    """The trained expert of a build task, in eval mode, on ``scene`` (default: the task's scene on its
+    recipe's background)."""
     from moegs.train.checkpoint import load_expert
 
     folder = ctx.artifact(build)
-    expert, _state = load_expert(folder, ctx.scene(build))
+    if scene is None:
+        scene = ctx.scene(build, recipe_of(ctx, build).background)
+    expert, _state = load_expert(folder, scene)
     return expert
+
+
+def shared_background(ctx: Any, builds: list[Task]) -> str:
+    """The background several experts are combined on: the first one's; on RGBA data (D-NeRF) every
+    expert must have trained on it (``ValueError`` otherwise)."""
+    from moegs.recipes import dataset_of
+
+    recipes = [recipe_of(ctx, b) for b in builds]
+    backgrounds = {r.background for r in recipes}
+    if len(backgrounds) > 1 and dataset_of(builds[0].scene) == "dnerf":
+        raise ValueError(
+            f"{builds[0].scene}: experts train on different backgrounds "
+            f"({', '.join(f'{r.expert} {r.background}' for r in recipes)}); RGBA ground truth needs one"
+        )
+    return recipes[0].background
 
 
 def expert_renderer(expert: Any, background: Any):

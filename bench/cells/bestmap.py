@@ -13,7 +13,7 @@ from __future__ import annotations
 from typing import Any
 
 from bench.cells import expert as expert_kind
-from bench.cells._lib import expert_renderer, expert_task, load_trained_expert
+from bench.cells._lib import expert_renderer, expert_task, load_trained_expert, shared_background
 from bench.tasks import Task
 
 MIN_SHARE = 0.05
@@ -34,9 +34,9 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     from moegs.metrics import psnr
     from moegs.train.evaluate import eval_views
 
-    scene = ctx.scene(task)
+    scene = ctx.scene(task, shared_background(ctx, artifacts(task)))
     names = list(task.params["experts"])
-    renders = [expert_renderer(load_trained_expert(ctx, b), scene.background) for b in artifacts(task)]
+    renders = [expert_renderer(load_trained_expert(ctx, b, scene), scene.background) for b in artifacts(task)]
     views = sorted(eval_views(scene.test, ctx.preset.test_views), key=lambda v: v.camera.time)
     per_time: dict[float, list[list[float]]] = {}
     mid = views[len(views) // 2]

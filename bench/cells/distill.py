@@ -21,7 +21,7 @@ from bench.cells import expert as expert_kind
 from bench.cells import module_missing
 from bench.cells import moe as moe_kind
 from bench.cells._eval import evaluate_renderer, module_megabytes
-from bench.cells._lib import expert_renderer, expert_task, load_trained_expert, train_hours
+from bench.cells._lib import expert_renderer, expert_task, load_trained_expert, recipe_of, train_hours
 from bench.tasks import Task
 
 DISTILL_API = ("moegs.moe:DistillConfig", "moegs.moe:distill")
@@ -46,32 +46,30 @@ def deps(task: Task) -> list[Task]:
 
 
 def build(task: Task, ctx: Any, out: Path) -> dict[str, Any]:
-    import torch
-
-    from moegs.experts import get_expert_class
     from moegs.moe import DistillConfig, distill
+    from moegs.train.entry import build_expert
 
-    scene = ctx.scene(task)
+    scene = moe_kind.moe_scene(ctx, _teacher(task))
     teacher = moe_kind.load_model(ctx, _teacher(task))
-    cls = get_expert_class(task.params["student"])
-    student_cfg = expert_kind.train_config(cls, ctx, expert_task(task, cls.name))
-    torch.manual_seed(task.seed)
-    student = cls.from_scene(scene, student_cfg)
+    recipe = recipe_of(ctx, expert_task(task, task.params["student"]))
+    student = build_expert(recipe, scene)
     cfg = DistillConfig.from_preset(ctx.preset.expert_preset)
     cfg = replace(
         cfg,
         weighted=bool(task.params["weighted"]),
         seed=task.seed,
-        iterations=ctx.preset.steps(cfg.iterations or student_cfg.train.iterations, ctx.preset.distill_steps),
+        iterations=ctx.preset.steps(
+            cfg.iterations or recipe.config.train.iterations, ctx.preset.distill_steps
+        ),
     )
     result = distill(student, teacher, scene, cfg, out, progress=ctx.progress)
     return {"train_seconds": result.get("train_seconds")}
 
 
 def run(task: Task, ctx: Any) -> dict[str, Any]:
-    scene = ctx.scene(task)
+    scene = moe_kind.moe_scene(ctx, _teacher(task))
     build_task = artifacts(task)[0]
-    student = load_trained_expert(ctx, build_task)
+    student = load_trained_expert(ctx, build_task, scene)
     out = evaluate_renderer(expert_renderer(student, scene.background), scene, ctx.preset)
     out["metrics"]["memory_mb"] = module_megabytes(student)
     out["metrics"]["train_time_h"] = train_hours(ctx, [build_task])

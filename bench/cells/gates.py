@@ -29,7 +29,7 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     from moegs.metrics import psnr
     from moegs.train.evaluate import eval_views
 
-    scene = ctx.scene(task)
+    scene = moe_kind.moe_scene(ctx, artifacts(task)[0])
     model = moe_kind.load_model(ctx, artifacts(task)[0])
     views = sorted(eval_views(scene.test, ctx.preset.test_views), key=lambda v: v.camera.time)
     view = views[len(views) // 2]

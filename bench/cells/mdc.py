@@ -18,7 +18,7 @@ from typing import Any
 from bench.cells import expert as expert_kind
 from bench.cells import module_missing
 from bench.cells import moe as moe_kind
-from bench.cells._lib import expert_task, load_trained_expert
+from bench.cells._lib import expert_task, load_trained_expert, recipe_of
 from bench.tasks import Task
 
 MDC_API = "moegs.metrics.mdc:mdc"
@@ -58,18 +58,19 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     from moegs.render import rasterize
     from moegs.train.evaluate import eval_views
 
-    scene = ctx.scene(task)
     build_task = artifacts(task)[0]
     if "experts" in task.params:
         from moegs.moe import compute_responsibilities, lift
 
+        scene = moe_kind.moe_scene(ctx, build_task)
         model = moe_kind.load_model(ctx, build_task)
         compute_responsibilities(model, scene.train, scene.background)
 
         def frame_at(t: float) -> Any:
             return lift(model, t)
     else:
-        model = load_trained_expert(ctx, build_task)
+        scene = ctx.scene(task, recipe_of(ctx, build_task).background)
+        model = load_trained_expert(ctx, build_task, scene)
 
         def frame_at(t: float) -> Any:
             return model.frame(t)

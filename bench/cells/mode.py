@@ -9,19 +9,20 @@ Library API this kind calls (until it exists, cells report "not implemented yet:
 * ``moegs.mode.MoDEExpert``: an ``Expert`` registered as ``"mode"`` in ``moegs.experts``;
 * ``moegs.mode.MoDEConfig.from_preset(name)``: its config, with a ``experts`` field (deformation
   expert names, base first) and the usual ``train`` field.
+
+The config is MoDE's recipe (``moegs.recipes.config_for("mode", ...)``: the authors' code conventions,
+members on the scene's dataset recipes) with the bench's run fields (``_lib.recipe_of``).
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from bench.cells import expert as expert_kind
 from bench.cells import expert_missing, experts_missing, module_missing
 from bench.cells import scene as scene_kind
 from bench.cells._eval import evaluate_renderer, module_megabytes
-from bench.cells._lib import expert_renderer, load_trained_expert
+from bench.cells._lib import expert_renderer, load_trained_expert, recipe_of
 from bench.tasks import Task
 
 MODE_API = ("moegs.mode:MoDEExpert", "moegs.mode:MoDEConfig")
@@ -35,7 +36,7 @@ def missing(params: dict) -> list[str]:
 
 
 def mode_task(task: Task, experts: list[str]) -> Task:
-    return task.derive("build", "mode", {"experts": list(experts)})
+    return task.derive("build", "mode", {"experts": list(experts), "dataset": task.params.get("dataset")})
 
 
 def artifacts(task: Task) -> list[Task]:
@@ -46,33 +47,29 @@ def deps(task: Task) -> list[Task]:
     return [scene_kind.task_for(task)]
 
 
+def recipe(ctx: Any, task: Task):
+    """MoDE's recipe for a build task (members ``params["experts"]``, base first)."""
+    extra = {"experts": tuple(task.params["experts"])}
+    return recipe_of(ctx, task, expert="mode", extra=extra, steps=ctx.preset.mode_steps)
+
+
 def build(task: Task, ctx: Any, out: Path) -> dict[str, Any]:
-    import torch
-    from moegs.mode import MoDEConfig, MoDEExpert
+    from moegs.train.entry import train_recipe
 
-    from moegs.train.loop import train
-
-    scene = ctx.scene(task)
-    cfg = MoDEConfig.from_preset(ctx.preset.expert_preset)
-    cfg = replace(cfg, experts=list(task.params["experts"]))
-    iterations = ctx.preset.steps(cfg.train.iterations, ctx.preset.mode_steps)
-    cfg = replace(
-        cfg, train=replace(expert_kind.train_config(MoDEExpert, ctx, task).train, iterations=iterations)
-    )
-    torch.manual_seed(task.seed)
-    model = MoDEExpert.from_scene(scene, cfg)
-    result = train(model, scene, cfg.train, out_dir=out, progress=ctx.progress)
+    r = recipe(ctx, task)
+    _, result = train_recipe(r, ctx.scene(task, r.background), out, progress=ctx.progress)
     return {
         "train_seconds": result["train_seconds"],
         "iterations": result["iterations"],
         "num_gaussians": result["num_gaussians"],
+        "recipe": r.provenance(),
     }
 
 
 def run(task: Task, ctx: Any) -> dict[str, Any]:
-    scene = ctx.scene(task)
     build_task = artifacts(task)[0]
-    model = load_trained_expert(ctx, build_task)
+    scene = ctx.scene(task, recipe(ctx, build_task).background)
+    model = load_trained_expert(ctx, build_task, scene)
     out = evaluate_renderer(expert_renderer(model, scene.background), scene, ctx.preset)
     meta = ctx.meta(build_task)
     out["metrics"]["memory_mb"] = module_megabytes(model)

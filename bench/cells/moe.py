@@ -3,7 +3,10 @@
 Params: ``experts`` (registry names), ``router`` (``vapr`` volume-aware pixel router | ``pixel`` |
 ``volume``), optional ``single_pass`` (default True; False renders each expert separately),
 ``prune`` (``"gate"``: gate-aware pruning with the library's default threshold, or a ratio in (0, 1)),
-``budget`` (experts trained with that fraction of their iterations, Table XVIII).
+``budget`` (experts trained with that fraction of their iterations, Table XVIII), ``convention``
+(``code``, default: the authors' code conventions that produced the paper's numbers; ``paper``: the
+paper's wording, an extra row of Table VI). The router is trained and evaluated on the experts' shared
+background (``_lib.shared_background``).
 
 Library API this kind calls (until it exists, cells report "not implemented yet: <name>"):
 
@@ -26,7 +29,7 @@ from bench.cells import expert as expert_kind
 from bench.cells import experts_missing, module_missing
 from bench.cells import scene as scene_kind
 from bench.cells._eval import evaluate_renderer, module_megabytes
-from bench.cells._lib import expert_task, load_trained_expert, train_hours
+from bench.cells._lib import expert_task, load_trained_expert, shared_background, train_hours
 from bench.tasks import Task
 
 ROUTERS = ("vapr", "pixel", "volume")
@@ -45,11 +48,23 @@ def missing(params: dict) -> list[str]:
     return out
 
 
-def router_task(task: Task, experts: list[str], router: str = "vapr", budget: float | None = None) -> Task:
+def router_task(
+    task: Task,
+    experts: list[str],
+    router: str = "vapr",
+    budget: float | None = None,
+    convention: str = "code",
+) -> Task:
     """Build task of a trained router over ``experts`` (and the experts' budget and dataset configs)."""
-    params: dict[str, Any] = {"experts": list(experts), "router": router}
+    params: dict[str, Any] = {
+        "experts": list(experts),
+        "router": router,
+        "dataset": task.params.get("dataset"),
+    }
     if budget is not None and float(budget) != 1.0:
         params["budget"] = float(budget)
+    if convention != "code":
+        params["convention"] = convention
     configs = {e: c for e, c in task.params.get("expert_config", {}).items() if e in experts}
     if configs:
         params["expert_config"] = configs
@@ -58,7 +73,9 @@ def router_task(task: Task, experts: list[str], router: str = "vapr", budget: fl
 
 def artifacts(task: Task) -> list[Task]:
     p = task.params
-    return [router_task(task, p["experts"], p.get("router", "vapr"), p.get("budget"))]
+    return [
+        router_task(task, p["experts"], p.get("router", "vapr"), p.get("budget"), p.get("convention", "code"))
+    ]
 
 
 def deps(task: Task) -> list[Task]:
@@ -66,18 +83,32 @@ def deps(task: Task) -> list[Task]:
     return [scene_kind.task_for(task), *(expert_task(task, e, budget) for e in task.params["experts"])]
 
 
-def build(task: Task, ctx: Any, out: Path) -> dict[str, Any]:
-    from moegs.moe import RouterConfig, train_router
+def router_config(ctx: Any, task: Task):
+    """The ``RouterConfig`` of a router build task: the preset of the bench scale and convention."""
+    from moegs.moe import RouterConfig, router_preset
 
-    experts = [load_trained_expert(ctx, d) for d in deps(task)[1:]]
-    cfg = RouterConfig.from_preset(ctx.preset.expert_preset)
-    cfg = replace(
+    cfg = RouterConfig.from_preset(
+        router_preset(ctx.preset.expert_preset, task.params.get("convention", "code"))
+    )
+    return replace(
         cfg,
         variant=task.params["router"],
         seed=task.seed,
         iterations=ctx.preset.steps(cfg.iterations, ctx.preset.router_steps),
     )
-    result = train_router(experts, ctx.scene(task), cfg, out, progress=ctx.progress)
+
+
+def moe_scene(ctx: Any, build_task: Task):
+    """The scene a router build task trains and evaluates on (the experts' shared background)."""
+    return ctx.scene(build_task, shared_background(ctx, deps(build_task)[1:]))
+
+
+def build(task: Task, ctx: Any, out: Path) -> dict[str, Any]:
+    from moegs.moe import train_router
+
+    experts = [load_trained_expert(ctx, d) for d in deps(task)[1:]]
+    cfg = router_config(ctx, task)
+    result = train_router(experts, moe_scene(ctx, task), cfg, out, progress=ctx.progress)
     return {"train_seconds": result.get("train_seconds"), "router": task.params["router"]}
 
 
@@ -86,12 +117,34 @@ def load_model(ctx: Any, build_task: Task):
     from moegs.moe import load_moe
 
     experts = [load_trained_expert(ctx, d) for d in deps(build_task)[1:]]
-    return load_moe(ctx.artifact(build_task), experts, ctx.scene(build_task)).eval()
+    return load_moe(ctx.artifact(build_task), experts, moe_scene(ctx, build_task)).eval()
+
+
+def routing_signal(gates: list[Any], views: list[Any]) -> dict[str, Any]:
+    """Mean over ``views`` (with their gate maps, in order) of the winner map's spatial coherence and of
+    the share of dynamic / static pixels each expert wins (views without a mask: coherence only)."""
+    from moegs.moe import region_shares, winner_coherence
+
+    coherence, shares = [], []
+    for g, view in zip(gates, views, strict=False):
+        coherence.append(winner_coherence(g))
+        mask = view.mask()
+        if mask is not None:
+            shares.append(region_shares(g, mask))
+    out: dict[str, Any] = {"coherence": sum(coherence) / len(coherence), "views": len(coherence)}
+    for region in ("dynamic", "static"):
+        per_view = [s[region] for s in shares]
+        out[f"{region}_share"] = (
+            [sum(col) / len(per_view) for col in zip(*per_view, strict=True)] if per_view else []
+        )
+    return out
 
 
 def run(task: Task, ctx: Any) -> dict[str, Any]:
-    scene = ctx.scene(task)
+    from moegs.train.evaluate import eval_views
+
     build_task = artifacts(task)[0]
+    scene = moe_scene(ctx, build_task)
     model = load_model(ctx, build_task)
     details: dict[str, Any] = {}
     prune = task.params.get("prune")
@@ -100,11 +153,15 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
 
         details["pruning"] = gate_prune(model, scene, ratio=None if prune == "gate" else float(prune))
     single_pass = bool(task.params.get("single_pass", True))
+    gates: list[Any] = []  # the gate maps of the evaluation renders (the speed renders come after)
 
     def render(camera: Any) -> Any:
-        return model.render(camera, scene.background, single_pass=single_pass).image
+        out = model.render(camera, scene.background, single_pass=single_pass)
+        gates.append(out.gates)
+        return out.image
 
     out = evaluate_renderer(render, scene, ctx.preset)
+    details["routing"] = routing_signal(gates, eval_views(scene.test, ctx.preset.test_views))
     out["metrics"]["memory_mb"] = module_megabytes(model)
     out["metrics"]["train_time_h"] = train_hours(ctx, [*deps(build_task)[1:], build_task])
     out["details"].update(details, single_pass=single_pass)

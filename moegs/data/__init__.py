@@ -15,6 +15,9 @@ import importlib
 from pathlib import Path
 from typing import Any
 
+from torch import Tensor
+
+from moegs.data._io import with_background
 from moegs.data.scene import ImageCache, PointCloud, Scene, View
 from moegs.paths import data_root
 
@@ -132,14 +135,19 @@ def resolve_scene_path(name: str) -> Path:
     )
 
 
-def load_scene(name: str, path: str | Path | None = None, **kwargs: Any) -> Scene:
+def load_scene(
+    name: str, path: str | Path | None = None, background: str | Tensor | None = None, **kwargs: Any
+) -> Scene:
     """Load a scene by registry name.
 
     Args:
         name: ``dnerf:<scene>``, ``panoptic:<scene>``, ``n3v:<scene>``, ``technicolor:<scene>``,
             ``hypernerf:<scene>`` or ``synthetic:<name>``.
         path: explicit scene folder (skips the data-root lookup).
-        **kwargs: passed to the dataset's loader (``resolution_scale``, ``frames``, ``background`` ...).
+        background: ``"white"``, ``"black"`` or RGB ``[3]``: the colour renders and ground truth share.
+            D-NeRF composites its RGBA images on it; the other datasets' images are opaque, so it is only
+            what renders show where no Gaussian covers a pixel. None: the dataset's default.
+        **kwargs: passed to the dataset's loader (``resolution_scale``, ``frames`` ...).
     """
     dataset, scene = _parse(name)
     module_name, fn_name, _, layout = _DATASETS[dataset]
@@ -148,9 +156,11 @@ def load_scene(name: str, path: str | Path | None = None, **kwargs: Any) -> Scen
     if dataset == "synthetic":  # ``path`` is the parent folder of the generated scenes
         if path is not None:
             kwargs["root"] = path
+        if background is not None:
+            kwargs["background"] = background
         return loader(scene, **kwargs)
     folder = Path(path) if path is not None else resolve_scene_path(name)
     if not folder.is_dir():
         raise FileNotFoundError(f"{name}: expected folder {folder} with {layout}")
     kwargs.setdefault("name", f"{dataset}:{scene}")
-    return loader(folder, **kwargs)
+    return with_background(loader, folder, background, **kwargs)

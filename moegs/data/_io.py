@@ -7,6 +7,7 @@ Video decoding lives in ``moegs.data._video``, initial point clouds in ``moegs.d
 
 from __future__ import annotations
 
+import inspect
 import json
 from collections.abc import Sequence
 from pathlib import Path
@@ -103,6 +104,20 @@ def check_size(arr: np.ndarray | Tensor, expected: tuple[int, int], path: Path |
         )
 
 
+BACKGROUNDS = {"white": (1.0, 1.0, 1.0), "black": (0.0, 0.0, 0.0)}
+
+
+def background_color(background: str | Tensor) -> Tensor:
+    """``"white"``, ``"black"`` or an RGB tensor -> float32 ``[3]``; ``ValueError`` otherwise."""
+    if isinstance(background, Tensor):
+        if background.numel() != 3:
+            raise ValueError(f"background must have 3 values (RGB), got shape {list(background.shape)}")
+        return background.to(torch.float32).reshape(3)
+    if background not in BACKGROUNDS:
+        raise ValueError(f"background must be 'white', 'black' or an RGB tensor, got {background!r}")
+    return torch.tensor(BACKGROUNDS[background])
+
+
 def to_rgb(arr: np.ndarray, background: Tensor) -> Tensor:
     """uint8 ``[H, W, 3|4]`` -> float32 ``[H, W, 3]`` in [0, 1]; RGBA is composited on ``background [3]``."""
     img = torch.from_numpy(np.ascontiguousarray(arr)).to(torch.float32) / 255.0
@@ -154,6 +169,17 @@ def load_rgb(
     if arr.shape[-1] == 4:
         return resize(to_rgb(arr, background), size, method)
     return to_rgb(resize_uint8(arr, size, method), background)
+
+
+def load_alpha_mask(path: Path, native: tuple[int, int], size: tuple[int, int], method: str) -> Tensor:
+    """Object mask ``[H, W]`` float32 of an RGBA image: its alpha resized to ``size``, above 0.5 (an
+    RGB image has no alpha: ``ValueError`` naming the file)."""
+    arr = read_image(path)
+    check_size(arr, native, path)
+    if arr.shape[-1] != 4:
+        raise ValueError(f"{path}: no alpha channel, so no object mask (expected an RGBA PNG)")
+    alpha = resize(torch.from_numpy(arr[..., 3:].astype(np.float32) / 255.0), size, method)[..., 0]
+    return (alpha > 0.5).float()
 
 
 # -- scene-level quantities -------------------------------------------------------------------------
@@ -216,3 +242,15 @@ def colmap_w2c(image: Any) -> Tensor:
     w2c = torch.eye(4, dtype=torch.float64)
     w2c[:3] = torch.from_numpy(np.asarray(pose.matrix(), dtype=np.float64))
     return w2c.to(torch.float32)
+
+
+def with_background(loader: Any, source: Any, background: str | Tensor | None, **kwargs: Any) -> Any:
+    """``loader(source, **kwargs)`` on ``background``: passed to loaders that composite RGBA images
+    (``background`` argument), set as the scene's colour for the others."""
+    if background is None:
+        return loader(source, **kwargs)
+    if "background" in inspect.signature(loader).parameters:
+        return loader(source, background=background, **kwargs)
+    scene = loader(source, **kwargs)
+    scene.background = background_color(background)
+    return scene

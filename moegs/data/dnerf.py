@@ -17,6 +17,8 @@ Conventions chosen (see ``specs/peers_and_style.md`` C.2):
 - Points: D-NeRF has none; 100k random points in [-1.3, 1.3]^3 (DeformableGS / Grid4D; 4DGaussians
   uses 2000, pass ``num_points=2000``). ``bbox`` is that box; ``extent`` is 3DGS ``getNerfppNorm``.
 - Test split: ``test`` (MoE-GS; lego's test split is misaligned, ``test_split="val"`` evaluates on val).
+- Masks: ``View.load_mask`` is the object (alpha > 0.5 after resizing): D-NeRF's moving content, the
+  "dynamic" region of the region metrics; the empty background is the "static" one.
 """
 
 from __future__ import annotations
@@ -30,7 +32,15 @@ from torch import Tensor
 
 from moegs.camera import Camera, intrinsics
 from moegs.data._init_points import box_points
-from moegs.data._io import camera_extent, image_size, key, load_json, load_rgb
+from moegs.data._io import (
+    background_color,
+    camera_extent,
+    image_size,
+    key,
+    load_alpha_mask,
+    load_json,
+    load_rgb,
+)
 from moegs.data.scene import Scene, View
 
 BOX = 1.3  # half-size of the random-init box (DeformableGS / Grid4D / 4DGaussians)
@@ -46,15 +56,6 @@ def blender_to_w2c(c2w_gl: Tensor) -> Tensor:
 def w2c_to_blender(w2c: Tensor) -> Tensor:
     """Inverse of :func:`blender_to_w2c` (used to write fixtures)."""
     return (torch.linalg.inv(w2c.to(torch.float64)) @ _OPENGL_TO_OPENCV).to(torch.float32)
-
-
-def _background(background: str | Tensor) -> Tensor:
-    if isinstance(background, Tensor):
-        return background.to(torch.float32).reshape(3)
-    colours = {"white": [1.0, 1.0, 1.0], "black": [0.0, 0.0, 0.0]}
-    if background not in colours:
-        raise ValueError(f"D-NeRF background must be 'white', 'black' or an RGB tensor, got {background!r}")
-    return torch.tensor(colours[background])
 
 
 def _read_split(
@@ -98,6 +99,7 @@ def _read_split(
                 camera=cam,
                 key=f"dnerf:{root.name}/{split}/{i}@{size[0]}x{size[1]}",
                 load_image=partial(load_rgb, img_path, native, size, bg, resample),
+                load_mask=partial(load_alpha_mask, img_path, native, size, resample),
             )
         )
     return views, native
@@ -131,7 +133,7 @@ def load_dnerf(
         )
     if test_split not in ("test", "val"):
         raise ValueError(f"D-NeRF test_split must be 'test' or 'val', got {test_split!r}")
-    bg = _background(background)
+    bg = background_color(background)
     train, native = _read_split(root, "train", resolution_scale, bg, resample, None)
     test, _ = _read_split(root, test_split, resolution_scale, bg, resample, native)
     bbox = torch.tensor([[-BOX] * 3, [BOX] * 3])

@@ -17,14 +17,14 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Self
 
 import torch
 from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.gaussians import GaussianFrame
-from moegs.io.config import Presets
+from moegs.io.config import Presets, with_fields
 from moegs.train.config import TrainConfig
 
 if TYPE_CHECKING:
@@ -71,16 +71,82 @@ def splat_param_groups(
     return [first] + [ParamGroup(key, [splats[key]], rate, **options) for key, rate in constant]
 
 
+@dataclass(frozen=True)
+class DatasetPreset:
+    """Which preset of an expert config a dataset uses, and where its values come from.
+
+    Attributes:
+        preset: a name of ``ExpertConfig.presets()``.
+        source: the original's config files (``"arguments/neu3d/*.py"``), or why it is an adaptation.
+        adapted: True when the original has no config for the dataset.
+    """
+
+    preset: str
+    source: str
+    adapted: bool = False
+
+
 @dataclass
 class ExpertConfig(Presets):
-    """Base of expert configs: the training settings plus named presets.
+    """Base of expert configs: the training settings, named presets and the recipe tables.
 
     Subclasses add their fields (each with a docstring; constants that differ from the paper or the
-    original code say where they come from) and implement ``presets``.
+    original code say where they come from), implement ``presets`` and ``quick_fields``, and fill the
+    recipe tables that ``moegs.recipes.config_for`` reads:
+
+    * ``DATASET_PRESETS``: dataset -> the preset holding the original's config for it (``"*"``: one
+      recipe for every dataset); other datasets use ``DEFAULT_PRESET``, marked as an adaptation;
+    * ``SCENE_OVERRIDES``: ``"<dataset>:<scene>"`` -> dotted field -> the value the original sets for
+      that scene (each with the original's file and line);
+    * ``BACKGROUNDS``: dataset -> ``"white"`` / ``"black"`` the original trains and evaluates on
+      (``"*"``: every other dataset).
     """
 
     train: TrainConfig = field(default_factory=TrainConfig)
     """Settings of the training loop (iterations, batch, D-SSIM weight, resolution ...)."""
+
+    DATASET_PRESETS: ClassVar[dict[str, DatasetPreset]] = {}
+    DEFAULT_PRESET: ClassVar[str] = "paper"
+    SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {}
+    BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "black"}
+
+    @classmethod
+    def dataset_preset(cls, dataset: str) -> DatasetPreset:
+        """The preset of ``dataset`` (an adaptation of ``DEFAULT_PRESET`` when the original has none)."""
+        for key in (dataset, "*"):
+            if key in cls.DATASET_PRESETS:
+                return cls.DATASET_PRESETS[key]
+        known = ", ".join(sorted(cls.DATASET_PRESETS)) or "none"
+        return DatasetPreset(
+            cls.DEFAULT_PRESET,
+            f"adaptation: the original has no {dataset} config (configs: {known}); "
+            f"its {cls.DEFAULT_PRESET!r} recipe is used",
+            adapted=True,
+        )
+
+    @classmethod
+    def background_for(cls, dataset: str) -> str:
+        """``"white"`` or ``"black"``: the background the original uses on ``dataset``."""
+        return cls.BACKGROUNDS.get(dataset, cls.BACKGROUNDS["*"])
+
+    @classmethod
+    def own_frame_fields(cls, config: Self, dataset: str, real: bool) -> dict[str, Any]:
+        """Fields to reset where a preset's world-frame rule does not hold (dotted field -> value): rules
+        tied to a dataset's coordinates (STG's N3V z < 4.5 prune, Ex4DGS's N3V near plane) are turned off
+        on stand-ins and on datasets the preset was not written for. Default: none."""
+        return {}
+
+    @classmethod
+    def quick_fields(cls, paper: Self) -> dict[str, Any]:
+        """The ``quick`` preset's named reductions of a ``paper`` config (dotted field -> value): the only
+        fields in which ``quick`` differs from the recipe it reduces."""
+        raise NotImplementedError(f"{cls.__name__} defines no quick reductions")
+
+    @classmethod
+    def quick(cls) -> Self:
+        """The ``quick`` reduction of the default ``paper`` config."""
+        paper = cls()
+        return with_fields(paper, cls.quick_fields(paper))
 
 
 @dataclass
@@ -215,6 +281,11 @@ class Expert(nn.Module, metaclass=abc.ABCMeta):
     def strategy(self) -> Strategy | None:
         """The densification strategy acting on ``splats`` (None: the set of Gaussians is fixed)."""
         return None
+
+    def strategy_inputs(self, scene: Scene) -> dict:
+        """Facts about the scene and the initial model that the strategy needs, computed once before the
+        first step and added to its state (e.g. STG's per-camera far depth); default: none."""
+        return {}
 
     def select_views(
         self, step: int, views: list[View], batch_size: int, generator: torch.Generator

@@ -15,11 +15,12 @@ from torch import Tensor, nn
 from moegs.camera import Camera
 from moegs.data.scene import Scene
 from moegs.experts.gaussian_params import init_splats
-from moegs.experts.static import StaticConfig, StaticExpert, scene_points, thin_points
+from moegs.experts.static import QUICK_ITERATIONS, StaticConfig, StaticExpert, scene_points, thin_points
 from moegs.gaussians import GaussianFrame
 
-QUICK_ITERATIONS = 600  # quick presets share the static baseline's budget (StaticConfig.quick)
-QUICK_STATIC_ITERATIONS = 150  # quick: the 3000-iteration static phase -> a quarter of the short run
+QUICK_STATIC_ITERATIONS = (
+    QUICK_ITERATIONS // 4
+)  # quick: the 3000-iteration static phase -> a quarter of the short run
 
 
 class DeformingExpert(StaticExpert):
@@ -54,7 +55,11 @@ class DeformingExpert(StaticExpert):
     def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
         return self.deform(self.splats, t, camera)
 
-    def deform(self, splats: Mapping[str, Tensor], t: float, camera: Camera | None = None) -> GaussianFrame:
+    def deform(
+        self, splats: Mapping[str, Tensor], t: float, camera: Camera | None = None, raw_quats: bool = False
+    ) -> GaussianFrame:
         """The activated Gaussians at ``t`` of the canonical parameters ``splats`` (this expert's own, or
-        those MoDE shares between deformation experts) under this expert's deformation field."""
+        those MoDE shares between deformation experts) under this expert's deformation field.
+        ``raw_quats``: leave the deformed quaternions as the original computes them before its rasterizer
+        normalises them (MoDE mixes those)."""
         raise NotImplementedError

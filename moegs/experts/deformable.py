@@ -13,24 +13,26 @@ Facts from ``ingra14m/Deformable-3D-Gaussians`` (``utils/time_utils.py``, ``scen
 * static warm-up: no deformation for iterations ``< warm_up`` (3000);
 * annealed smooth training (AST, real data only): ``t += N(0, 1) / n * 0.1 (1 - step / 20000)``, one draw per
   iteration shared by all Gaussians;
-* loss 0.8 L1 + 0.2 D-SSIM, 40k iterations, ``spatial_lr_scale`` hard-coded to 5, deformation Adam lr
-  ``8e-4 -> 1.6e-6`` over 40k, black background, 100k random initial points on D-NeRF.
+* loss 0.8 L1 + 0.2 D-SSIM, 40k iterations, ``spatial_lr_scale`` hard-coded to 5 (it also multiplies the
+  scaling lr: 5e-3), deformation Adam lr ``8e-4 -> 1.6e-6`` over 40k, black background on every dataset
+  (no ``-w`` in the README commands), 100k random initial points on D-NeRF.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene
-from moegs.experts.base import ParamGroup
-from moegs.experts.canonical import QUICK_ITERATIONS, QUICK_STATIC_ITERATIONS, DeformingExpert
+from moegs.experts.base import DatasetPreset, ParamGroup
+from moegs.experts.canonical import QUICK_STATIC_ITERATIONS, DeformingExpert
 from moegs.experts.gaussian_params import activate
-from moegs.experts.static import QUICK_RESOLUTION, StaticConfig
+from moegs.experts.static import QUICK_DENSIFY, QUICK_ITERATIONS, QUICK_POINTS, QUICK_RESOLUTION, StaticConfig
 from moegs.fields import Heads, PositionalEncoding, SkipMLP, mlp
 from moegs.gaussians import GaussianFrame
 from moegs.train.config import TrainConfig
@@ -120,14 +122,29 @@ class DeformableConfig(StaticConfig):
     """``position_lr_delay_mult``; inactive because the original never sets delay steps."""
     spatial_lr_scale: float | None = 5.0
     """Hard-coded 5 in ``GaussianModel`` and ``DeformModel`` (the scene extent is ignored)."""
-    scales_lr: float = 1e-3
-    """``scaling_lr = 0.001`` in ``arguments/__init__.py`` (the spec's 5e-3 is the 3DGS value)."""
+    scales_lr: float = 5e-3
+    """``scaling_lr`` 0.001 (``arguments/__init__.py:90``) times ``spatial_lr_scale`` 5
+    (``scene/gaussian_model.py:124``)."""
     strategy: Strategy = field(default_factory=ADCStrategy)
     """Densification of the ``paper`` branch (vanilla ‖∂L/∂μ2D‖, τ 2e-4, 500-15k every 100, reset 3000);
     the ``main`` branch's AbsGS gradient (τ 7e-4) is not reproduced."""
-    background: str = "black"
-    """Background the original trains and evaluates on (no ``-w``); the scene must be loaded with it."""
     train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations=40_000, lambda_dssim=0.2))
+
+    DATASET_PRESETS: ClassVar[dict[str, DatasetPreset]] = {
+        "dnerf": DatasetPreset("paper-dnerf", "arguments/__init__.py; README.md:83 (--is_blender)"),
+        "hypernerf": DatasetPreset(
+            "paper-hypernerf", "arguments/__init__.py; README.md:89 (--iterations 20000)"
+        ),
+        "n3v": DatasetPreset(
+            "paper-n3v",
+            "adaptation: the original reads 24 frames per N3V camera and has no N3V command "
+            "(scene/dataset_readers.py:513-597); real-data path on the full sequence",
+            adapted=True,
+        ),
+    }
+    DEFAULT_PRESET: ClassVar[str] = "paper-n3v"
+    BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "black"}
+    """``_white_background = False`` (``arguments/__init__.py:57``) and no ``-w`` in the README."""
 
     @classmethod
     def presets(cls) -> dict[str, Callable[[], DeformableConfig]]:
@@ -156,18 +173,19 @@ class DeformableConfig(StaticConfig):
         return cls(time_freqs=10, timenet_out=None, time_noise=True)
 
     @classmethod
-    def quick(cls) -> DeformableConfig:
-        """CPU minutes on 100x100 D-NeRF, the static baseline's budget (600 iterations, 5k points)."""
-        it = QUICK_ITERATIONS
-        return cls(
-            max_init_points=5000,  # quick: 100k random points -> 5k (CPU rasterizer cost)
-            width=64,  # quick: trunk width 256 -> 64 (CPU cost; depth, skip and heads unchanged)
-            warm_up=QUICK_STATIC_ITERATIONS,  # quick: 3000 of 40k -> 150 of 600
-            means_lr_max_steps=it,  # quick: the canonical xyz decay spans the short run, as for `static`
+    def quick_fields(cls, paper: DeformableConfig) -> dict[str, Any]:
+        """CPU minutes on 100x100 D-NeRF: the static baseline's budget (600 iterations, 5k points)."""
+        return {
+            "max_init_points": QUICK_POINTS,
+            "width": 64,  # trunk width 256 -> 64 (CPU cost; depth, skip and heads unchanged)
+            "warm_up": QUICK_STATIC_ITERATIONS,  # 3000 of 40k -> 150 of 600
+            "time_noise_steps": QUICK_ITERATIONS // 2,  # AST anneals over half the run (20k of 40k)
+            "means_lr_max_steps": QUICK_ITERATIONS,  # the canonical xyz decay spans the short run
             # deform_lr_max_steps stays 40k: a 600-step decay starves the MLP (measured 22.3 vs 26.7 dB)
-            strategy=ADCStrategy(densify_from=100, densify_until=450, densify_every=50, reset_every=300),
-            train=TrainConfig(iterations=it, lambda_dssim=0.2, resolution_scale=QUICK_RESOLUTION),
-        )
+            **QUICK_DENSIFY,
+            "train.iterations": QUICK_ITERATIONS,
+            "train.resolution_scale": QUICK_RESOLUTION,
+        }
 
 
 class DeformableExpert(DeformingExpert):

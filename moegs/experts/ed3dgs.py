@@ -28,26 +28,32 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene, View
-from moegs.experts.base import Expert, ExpertConfig, ParamGroup, splat_param_groups
-from moegs.experts.canonical import QUICK_ITERATIONS
+from moegs.experts.base import DatasetPreset, Expert, ExpertConfig, ParamGroup, splat_param_groups
 from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats, num_sh_bases
-from moegs.experts.static import QUICK_RESOLUTION, scene_points, thin_points
+from moegs.experts.static import (
+    QUICK_ITERATIONS,
+    QUICK_POINTS,
+    QUICK_RESOLUTION,
+    quick_step,
+    scene_points,
+    thin_points,
+)
 from moegs.fields.mlp import Heads, mlp
 from moegs.gaussians import GaussianFrame
 from moegs.render import RenderOutput
 from moegs.train.config import TrainConfig
 from moegs.train.losses import dssim, l1
-from moegs.train.strategy import ADCStrategy, Strategy
+from moegs.train.strategy import NEVER, ADCStrategy, Strategy
 
 DEFORMABLE = ("means", "scales", "quats", "opacities", "sh")
 _HEAD_DIMS = {"means": 3, "scales": 3, "quats": 4, "opacities": 1}
-NEVER = 10**9  # an iteration no run reaches (E-D3DGS ``opacity_reset_interval = 6e6``)
 
 
 # -- formulas ----------------------------------------------------------------------------------------
@@ -298,35 +304,158 @@ class ED3DGSConfig(ExpertConfig):
                 f"{self.max_embeddings}"
             )
 
-    @classmethod
-    def presets(cls) -> dict[str, Callable[[], ED3DGSConfig]]:
-        return {"paper": cls, "quick": cls.quick}
+    DATASET_PRESETS: ClassVar[dict[str, DatasetPreset]] = {
+        "n3v": DatasetPreset("paper", "arguments/dynerf/default.py over arguments/__init__.py"),
+        "technicolor": DatasetPreset("paper-technicolor", "arguments/technicolor/default.py"),
+        "hypernerf": DatasetPreset("paper-hypernerf", "arguments/hypernerf/default.py"),
+        "dnerf": DatasetPreset(
+            "paper-hypernerf",
+            "adaptation: the original has no D-NeRF config; its monocular (HyperNeRF) recipe is used",
+            adapted=True,
+        ),
+    }
+    BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "white"}
+    """``white_background`` is forced on for every dataset (``arguments/__init__.py:54``, ``train.py:46``)."""
+    SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
+        # arguments/dynerf/flame_steak.py:4-5
+        "n3v:flame_steak": {"strategy.grad_threshold": 2e-4},
+        # arguments/technicolor/<Scene>.py:3-9 (Train.py:3-13): longer schedules, reg_coef 0.1
+        **{
+            f"technicolor:{name}": {
+                "train.iterations": steps,
+                "strategy.densify_until": steps,
+                "means_lr_max_steps": steps,
+                "deformation_lr_max_steps": steps,
+                "smoothness_reg": 0.1,
+            }
+            for name, steps in (
+                ("birthday", 100_000),
+                ("painter", 100_000),
+                ("fabien", 120_000),
+                ("theater", 120_000),
+            )
+        },
+        "technicolor:train": {
+            "deformation_lr": 5e-3,  # Train.py:3
+            "deformation_lr_final": 5e-5,  # Train.py:4
+            "train.iterations": 120_000,  # Train.py:7
+            "strategy.densify_until": 120_000,  # Train.py:9
+            "means_lr_max_steps": 120_000,  # Train.py:11
+            "deformation_lr_max_steps": 120_000,  # Train.py:12
+            "smoothness_reg": 0.1,  # Train.py:13
+        },
+        # arguments/hypernerf/vrig-<scene>.py:3-14 (knots, coarse-to-fine, schedule lengths)
+        **{
+            f"hypernerf:{name}": {
+                "min_embeddings": lo,
+                "max_embeddings": hi,
+                "coarse_to_fine_until": c2f,
+                "train.iterations": steps,
+                "strategy.densify_until": steps,
+                "means_lr_max_steps": steps,
+                "deformation_lr_max_steps": steps,
+            }
+            for name, lo, hi, c2f, steps in (
+                ("3dprinter", 20, 100, 20_000, 60_000),
+                ("broom", 20, 100, 20_000, 60_000),
+                ("chicken", 16, 80, 10_000, 60_000),
+                ("peel-banana", 50, 250, 40_000, 80_000),
+            )
+        },
+    }
 
     @classmethod
-    def quick(cls) -> ED3DGSConfig:
-        """CPU minutes: the N3V recipe with every schedule shrunk from 80k to the static baseline's 600."""
-        iterations = QUICK_ITERATIONS  # quick: 80k -> 600; all iteration counts below scale with it
+    def presets(cls) -> dict[str, Callable[[], ED3DGSConfig]]:
+        return {
+            "paper": cls,
+            "paper-n3v": cls,
+            "paper-technicolor": cls.paper_technicolor,
+            "paper-hypernerf": cls.paper_hypernerf,
+            "quick": cls.quick,
+        }
+
+    @classmethod
+    def paper_technicolor(cls) -> ED3DGSConfig:
+        """``arguments/technicolor/default.py`` (line numbers in the comments)."""
         return cls(
-            max_init_points=5000,  # quick: CPU rasterizer cost (E-D3DGS: up to 100k MVS points)
-            width=64,  # quick: the code default (arguments/__init__.py); every dataset config uses 128
-            coarse_to_fine_until=iterations // 8,  # quick: 10k of 80k
-            anneal_steps=50,  # quick: 1000 of 80k would leave the deformation ramping over the whole run
-            deform_from=iterations // 16,  # quick: 5000 of 80k
-            means_lr_max_steps=iterations,
-            deformation_lr_max_steps=iterations,
-            random_until=iterations // 8,  # quick: 10k of 80k
+            depth=0,  # :7 (builds the same net as 1)
+            deform=("means", "scales", "quats", "opacities"),  # :9-11 (no_dc: no SH head)
+            min_embeddings=5,  # :13
+            max_embeddings=25,  # :14
+            coarse_to_fine_until=None,  # :19 no_c2f_temporal_embedding
+            use_anneal=False,  # :22
+            zero_temporal=True,  # :23
+            deformation_lr=1.6e-3,  # :50
+            deformation_lr_final=1.6e-4,  # :51
+            time_offsets=False,  # :72 offsets_lr 0
+            random_until=60_000,  # :73
             strategy=ADCStrategy(
-                densify_from=iterations // 16,
-                densify_until=int(iterations * 0.75),
-                densify_every=50,
-                grad_threshold=3e-4,
-                prune_opacity=0.005,
-                reset_every=NEVER,
+                densify_from=500,  # :35-36
+                densify_until=80_000,  # :32
+                densify_every=100,  # :37
+                grad_threshold=3e-4,  # :39-40
+                prune_opacity=0.005,  # :42-43
+                reset_every=NEVER,  # :33
                 reset_at_densify_from_if_white=False,
             ),
-            # quick: densify every 50 (not 100) and stop at 75% so that a short run densifies ~8 times
-            train=TrainConfig(iterations=iterations, lambda_dssim=0.0, resolution_scale=QUICK_RESOLUTION),
+            train=TrainConfig(iterations=80_000, lambda_dssim=0.0),  # :29
         )
+
+    @classmethod
+    def paper_hypernerf(cls) -> ED3DGSConfig:
+        """``arguments/hypernerf/default.py`` over ``arguments/__init__.py`` (defaults of the fields the
+        vrig configs leave alone; they set knots and schedule lengths per scene). Deviation: the original's
+        batch of 2 is a pair of consecutive training images (``train.py:110-113``); here 2 random views."""
+        return cls(
+            depth=0,  # :7
+            deform=("means", "scales", "quats"),  # :9-11 (no_do, no_dc)
+            coarse_to_fine_until=20_000,  # arguments/__init__.py:93 (vrig configs override)
+            zero_temporal=True,  # :16
+            use_anneal=False,  # :17
+            deform_from=0,  # arguments/__init__.py:94
+            time_offsets=False,  # :60 offsets_lr 0 (monocular anyway)
+            means_lr_max_steps=20_000,  # arguments/__init__.py:107
+            deformation_lr_max_steps=80_000,  # :41
+            temporal_tv=1e-4,  # :62
+            lambda_ssim=0.0,  # :57
+            multiview_ssim_iters=0,  # :58
+            strategy=ADCStrategy(
+                densify_from=500,  # :25-26
+                densify_until=15_000,  # arguments/__init__.py:128
+                densify_every=100,  # :27
+                grad_threshold=2e-4,  # :29-30
+                prune_opacity=0.005,  # :31-32
+                reset_every=NEVER,  # :23
+                reset_at_densify_from_if_white=False,
+            ),
+            train=TrainConfig(iterations=30_000, batch_size=2, lambda_dssim=0.0),  # :22; __init__.py:102
+        )
+
+    @classmethod
+    def quick_fields(cls, paper: ED3DGSConfig) -> dict[str, Any]:
+        """CPU minutes: the dataset's recipe with every schedule moved to the same fraction of a 600-step
+        run (``quick_step``), densification every 50 until 75% of it, a narrower network."""
+        steps = paper.train.iterations
+
+        def at(step: int | None) -> int | None:
+            return None if step is None else quick_step(step, steps)
+
+        return {
+            "max_init_points": QUICK_POINTS,  # E-D3DGS: up to 100k MVS points
+            "width": 64,  # the code default (arguments/__init__.py:76); every dataset config uses 128
+            "coarse_to_fine_until": at(paper.coarse_to_fine_until),
+            "anneal_steps": 50,  # 1000 would leave the deformation ramping over most of the run
+            "deform_from": at(paper.deform_from),
+            "means_lr_max_steps": at(paper.means_lr_max_steps),
+            "deformation_lr_max_steps": at(paper.deformation_lr_max_steps),
+            "random_until": at(paper.random_until),
+            "strategy.densify_from": at(paper.strategy.densify_from),
+            "strategy.densify_until": int(QUICK_ITERATIONS * 0.75),  # the last densified Gaussians train
+            "strategy.densify_every": 50,  # 100 -> 50: a short run densifies ~8 times
+            "train.iterations": QUICK_ITERATIONS,
+            "train.batch_size": 1,  # N3V / HyperNeRF batch 2 (4) -> 1 (CPU cost; one view per step)
+            "train.resolution_scale": QUICK_RESOLUTION,
+        }
 
 
 # -- multi-view view sampler -----------------------------------------------------------------------------
@@ -490,8 +619,11 @@ class ED3DGSExpert(Expert):
     def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
         return self.deform(self.splats, t, camera)
 
-    def deform(self, splats: Mapping[str, Tensor], t: float, camera: Camera | None = None) -> GaussianFrame:
-        """The activated Gaussians at ``t`` of the canonical parameters ``splats`` (with ``embedding``)."""
+    def deform(
+        self, splats: Mapping[str, Tensor], t: float, camera: Camera | None = None, raw_quats: bool = False
+    ) -> GaussianFrame:
+        """The activated Gaussians at ``t`` of the canonical parameters ``splats`` (with ``embedding``);
+        ``raw_quats``: the deformed quaternions before normalisation (MoDE mixes those)."""
         s, f = splats, self.fields
         time = t + f.time_offset(camera, self.training)
         coef = self.coefficients()
@@ -508,7 +640,8 @@ class ED3DGSExpert(Expert):
                 raw[name] = raw[name] + d.reshape(raw[name].shape) * coef[name]
         sh = raw.pop("sh")
         raw.update(sh0=sh[:, :1], shN=sh[:, 1:])
-        return activate(raw, active_sh_degree(int(self.step), self.config.sh_degree))
+        overrides = {"quats": raw["quats"]} if raw_quats else {}
+        return activate(raw, active_sh_degree(int(self.step), self.config.sh_degree), **overrides)
 
     def regularization(self, step: int, frame: GaussianFrame | None = None) -> Tensor:
         c, s = self.config, self.splats

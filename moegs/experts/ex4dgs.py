@@ -26,29 +26,47 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene, View
-from moegs.experts.base import Expert, ExpertConfig, ParamGroup, SplatInputs, splat_param_groups
-from moegs.experts.canonical import QUICK_ITERATIONS
+from moegs.experts.base import (
+    DatasetPreset,
+    Expert,
+    ExpertConfig,
+    ParamGroup,
+    SplatInputs,
+    splat_param_groups,
+)
 from moegs.experts.gaussian_params import active_sh_degree, init_splats, sh_coeffs
-from moegs.experts.static import QUICK_RESOLUTION, scene_points, thin_points
+from moegs.experts.static import QUICK_ITERATIONS, QUICK_POINTS, QUICK_RESOLUTION, scene_points, thin_points
 from moegs.gaussians import GaussianFrame
 from moegs.metrics.ssim import ssim_map
 from moegs.render import RenderOutput, rasterize
 from moegs.render.projection import eval_sh, quat_to_rotmat, view_dirs
 from moegs.train.config import TrainConfig
-from moegs.train.strategy import ADCStrategy, Strategy, ops
+from moegs.train.strategy import NEVER, ADCStrategy, Strategy, ops
 
-NEVER = 10**9  # an iteration no run reaches
-STATS = ("err_sum", "ssim_sum", "err_count", "err_min", "err_min_time", "weight_max", "radius_min")
+STATS = ("err_sum", "ssim_sum", "err_count", "err_min", "err_min_time", "radius_min")
 """Back-tracking statistics kept as non-trainable per-Gaussian entries of ``splats`` (so densification
-keeps them aligned): sums of per-view L1 / SSIM, views counted, lowest L1 and its frame, largest splat
-weight seen and smallest screen radius seen."""
+keeps them aligned): sums of per-view L1 / SSIM and views counted since the last densification, lowest L1
+and its frame (-1: never seen with weight > 0.01 since creation), smallest screen radius since the last
+densification."""
+FRESH = {
+    "err_sum": 0.0,
+    "ssim_sum": 0.0,
+    "err_count": 0.0,
+    "err_min": 1000.0,
+    "err_min_time": -1.0,
+    "radius_min": 1000.0,
+}
+"""Values of the statistics of a new Gaussian (``densification_postfix`` / split children)."""
+RESET_AT_DENSIFY = ("err_sum", "ssim_sum", "err_count", "radius_min")
+"""Statistics every densification restarts (``c_gaussian_model.py:830-844,866-872``)."""
 
 
 # -- formulas ----------------------------------------------------------------------------------------
@@ -190,6 +208,9 @@ class Ex4DGSConfig(ExpertConfig):
     """Widen the temporal widths near the ends and clamp the centres every this many iterations ..."""
     adjust_until: int = 27_000
     """... until here (``adjust_temp_opa``)."""
+    near: float | None = None
+    """Near plane of training and evaluation renders (N3V: 4.0 in its world frame, ``configs/N3V/
+    n3v_base.json:16``; ``render.py:135-138``); None: the camera's own."""
     strategy: Strategy = field(default_factory=lambda: Ex4DGSStrategy())
     train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations=40_000, lambda_dssim=0.2))
     """N3V: 40k iterations, 0.8 L1 + 0.2 D-SSIM."""
@@ -203,41 +224,111 @@ class Ex4DGSConfig(ExpertConfig):
         """``τs = time_pad + interval`` (the cubic interpolation's extra keyframe in front)."""
         return self.time_pad + self.interval
 
-    @classmethod
-    def presets(cls) -> dict[str, Callable[[], Ex4DGSConfig]]:
-        return {"paper": cls, "quick": cls.quick}
+    DATASET_PRESETS: ClassVar[dict[str, DatasetPreset]] = {
+        "n3v": DatasetPreset("paper-n3v", "configs/N3V/n3v_base.json over arguments/__init__.py"),
+        "technicolor": DatasetPreset(
+            "paper-technicolor", "configs/techni/*.json (time_pad 3; per-scene values)"
+        ),
+    }
+    BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "white"}
+    """Evaluation on white (``render.py:131``); training draws a random background per iteration."""
+    SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
+        # configs/techni/<Scene>.json: densification_interval, densify_until, extract_from_iter, lrs,
+        # progressive_growing_steps, extracton_interval, extract_percentile, thresholds, static_reg;
+        # adjust_temp_opa runs every 4 densification intervals until densify_until - 3000 (train.py:233-234)
+        "technicolor:birthday": {
+            "strategy.densify_every": 250,
+            "motion_opacities_lr": 1e-4,
+            "widths_lr": 1e-3,
+            "grow_every": 350,
+            "extract_every": 1777,
+            "strategy.grad_threshold": 1.5e-4,
+            "strategy.dynamic_grad_threshold": 7e-5,
+            "reg_from": 450,
+            "adjust_every": 1000,
+        },
+        "technicolor:fabien": {"grow_from": 1000, "motion_opacities_lr": 0.05, "static_reg": 2e-4},
+        "technicolor:painter": {
+            "train.iterations": 30_000,
+            "strategy.densify_until": 25_000,
+            "motion_opacities_lr": 1e-4,
+            "widths_lr": 1e-3,
+            "strategy.grad_threshold": 2.5e-4,
+            "strategy.dynamic_grad_threshold": 8e-5,
+            "static_reg": 2e-4,
+            "adjust_until": 22_000,
+        },
+        "technicolor:theater": {
+            "grow_from": 1000,
+            "motion_opacities_lr": 0.05,
+            "strategy.grad_threshold": 2.5e-4,
+            "strategy.dynamic_grad_threshold": 8e-5,
+            "static_reg": 2e-4,
+        },
+        "technicolor:train": {
+            "strategy.densify_every": 200,
+            "motion_opacities_lr": 1e-4,
+            "widths_lr": 1e-3,
+            "grow_every": 300,
+            "extract_every": 4777,
+            "extract_percentile": 0.99,
+            "strategy.grad_threshold": 1e-4,
+            "strategy.dynamic_grad_threshold": 8e-5,
+            "static_reg": 2e-4,
+            "reg_from": 400,
+            "adjust_every": 800,
+        },
+    }
 
     @classmethod
-    def quick(cls) -> Ex4DGSConfig:
+    def presets(cls) -> dict[str, Callable[[], Ex4DGSConfig]]:
+        return {
+            "paper": cls,
+            "paper-n3v": lambda: cls(near=4.0),
+            "paper-technicolor": cls.paper_technicolor,
+            "quick": cls.quick,
+        }
+
+    @classmethod
+    def paper_technicolor(cls) -> Ex4DGSConfig:
+        """The values all ``configs/techni/*.json`` share: ``time_pad`` 3, temporal-centre lr 1e-3, 3777
+        iterations between extractions, no N3V near plane (near 0.01). Deviations: the original normalises
+        Technicolor scenes by the camera radius (``scene/dataset_readers.py:484-509``; absolute-unit rates
+        such as the drift lr differ), and Birthday / Painter / Train use 2.5e-4 for the dynamic SH (ours share
+        one SH rate)."""
+        return cls(time_pad=3, centers_lr=1e-3, extract_every=3777)
+
+    @classmethod
+    def own_frame_fields(cls, config: Ex4DGSConfig, dataset: str, real: bool) -> dict[str, Any]:
+        """The near plane 4.0 holds in real N3V's world frame only."""
+        return {} if (dataset == "n3v" and real) or config.near is None else {"near": None}
+
+    @classmethod
+    def quick_fields(cls, paper: Ex4DGSConfig) -> dict[str, Any]:
         """CPU minutes: every schedule shrunk from 40k to the static baseline's 600 iterations."""
-        iterations = QUICK_ITERATIONS  # quick: 40k -> 600
-        return cls(
-            max_init_points=5000,  # quick: CPU rasterizer cost
-            grow_from=30,
-            grow_every=30,  # quick: 500/400 -> 30/30 so 150 D-NeRF frames are reached at ~450
-            extract_every=300,
-            reg_from=30,
-            means_lr_max_steps=iterations,
-            # quick: RAdam -> Adam (RAdam's variance rectification warms up over ~1/(1-β2) = 1000s of
-            # steps: plain momentum SGD for 5 steps, then ~5% of Adam's step at iteration 10, ~20% at
-            # 100, ~50% at 600; negligible over 40k but most of a 600-step run: on D-NeRF mutant RAdam
-            # left 20.7 dB, below the static baseline's 22.8, Adam reaches 25.0)
-            optimizer="adam",
-            adjust_every=120,
-            adjust_until=int(iterations * 0.9),
-            strategy=Ex4DGSStrategy(
-                densify_from=30,
-                densify_until=int(iterations * 0.75),
-                densify_every=50,
-                error_prune_from=int(iterations * 0.5),
-                prune_from=int(iterations * 0.3),
-                prune_every=150,
-                small_radius=0.0,
-            ),
-            # quick: densify every 50 (N3V 300) from 30, error pruning from 50% (N3V 20k of 40k); no
-            # small-radius pruning: 5 px at N3V's 1352x1014 is below one pixel at the quick resolution
-            train=TrainConfig(iterations=iterations, lambda_dssim=0.2, resolution_scale=QUICK_RESOLUTION),
-        )
+        return {
+            "max_init_points": QUICK_POINTS,
+            "grow_from": 30,
+            "grow_every": 30,  # 500/400 -> 30/30 so 150 D-NeRF frames are reached at ~450
+            "extract_every": 300,
+            "reg_from": 30,
+            "means_lr_max_steps": QUICK_ITERATIONS,
+            # RAdam -> Adam: RAdam's variance rectification warms up over ~1/(1-β2) = 1000s of steps (plain
+            # momentum SGD for 5 steps, ~5% of Adam's step at iteration 10, ~20% at 100, ~50% at 600);
+            # negligible over 40k but most of a 600-step run: on mutant RAdam left 20.7 dB, Adam 25.0
+            "optimizer": "adam",
+            "adjust_every": 120,
+            "adjust_until": int(QUICK_ITERATIONS * 0.9),
+            "strategy.densify_from": 30,
+            "strategy.densify_until": int(QUICK_ITERATIONS * 0.75),
+            "strategy.densify_every": 50,  # N3V 300
+            "strategy.prune_from": int(QUICK_ITERATIONS * 0.3),
+            "strategy.prune_every": 150,
+            # no small-radius pruning: 5 px at N3V's 1352x1014 is below one pixel at the quick resolution
+            "strategy.small_radius": 0.0,
+            "train.iterations": QUICK_ITERATIONS,
+            "train.resolution_scale": QUICK_RESOLUTION,
+        }
 
 
 # -- densification -----------------------------------------------------------------------------------------
@@ -245,10 +336,15 @@ class Ex4DGSConfig(ExpertConfig):
 class Ex4DGSStrategy(ADCStrategy):
     """Ex4DGS ``densify_and_prune``: 3DGS clone/split with per-set thresholds, opacity pruning at 0.01 (of
     ``sigmoid`` of each set's own logit), no resets; plus back-tracking pruning (``error_*``) and removal
-    of Gaussians never seen with weight > ``invisible_weight`` or thinner than ``small_radius`` pixels.
+    of Gaussians never seen with weight > 0.01 since creation (``err_min_time < 0``) or thinner than
+    ``small_radius`` pixels since the last densification.
 
-    Split children of dynamic Gaussians move every keyframe by the same local offset rotated by that
-    keyframe's rotation, get centres jittered by ``max(|c1 - c0| / 3, 2 / I) N(0, 1)`` and log-widths 2.
+    Split children of dynamic Gaussians move every keyframe by the same local offset (drawn with twice the
+    scale, ``c_gaussian_model.py:925``) rotated by that keyframe's rotation, get centres jittered by
+    ``max(|c1 - c0| / 3, 2 / I) N(0, 1)`` and log-widths 2; clones of dynamic Gaussians get the same
+    jitter and widths (``:1002-1007``). Split children start with fresh back-tracking statistics, clones
+    copy them, and every densification restarts the per-interval ones (``RESET_AT_DENSIFY``).
+    Deviation: the jittered centres are not clamped to the trained range.
     """
 
     densify_from: int = 500
@@ -261,15 +357,15 @@ class Ex4DGSStrategy(ADCStrategy):
     reset_every: int = NEVER
     """Ex4DGS never calls its ``reset_opacity``."""
     reset_at_densify_from_if_white: bool = False
-    error_prune_from: int = 20_000
+    error_prune_from: int = NEVER
     """Back-tracking pruning every 5 densification intervals after this: mean L1 > ``error_l1`` or
-    0 < mean SSIM < ``error_ssim``."""
+    0 < mean SSIM < ``error_ssim``. Never in the original: clone/split zero the accumulators just before
+    the rule reads them (``c_gaussian_model.py:830-872`` vs ``1040-1063``); a step turns it on."""
     error_l1: float = 0.08
     error_ssim: float = 0.6
     prune_from: int = 6000
     """``prune_invisible`` / ``prune_small`` from here every ``prune_every`` iterations (an epoch)."""
     prune_every: int = 3000
-    invisible_weight: float = 0.01
     small_radius: float = 5.0
     interval: int = 10
     """Keyframe interval (copied from the config by the expert)."""
@@ -279,13 +375,13 @@ class Ex4DGSStrategy(ADCStrategy):
         index = mask.nonzero(as_tuple=True)[0]
         dynamic = params["dynamic"][index]
         scales = torch.exp(params["scales"][index])  # [M, 3]
-        local = torch.randn(self.split_samples, len(index), 3, device=scales.device) * scales  # [S, M, 3]
+        spread = torch.where(dynamic, 2.0, 1.0)[:, None] * scales  # dynamic: std 2 s
+        local = torch.randn(self.split_samples, len(index), 3, device=scales.device) * spread  # [S, M, 3]
         static_rot = quat_to_rotmat(nn.functional.normalize(params["quats"][index], dim=-1))  # [M, 3, 3]
         key_rot = quat_to_rotmat(
             nn.functional.normalize(params["motion_quats"][index], dim=-1)
         )  # [M, K, 3, 3]
-        c = params["centers"][index]
-        jitter = torch.maximum((c[:, 1] - c[:, 0]).abs() / 3, torch.full_like(c[:, 0], 2.0 / self.interval))
+        jitter = self._jitter(params["centers"][index])
 
         def children(key: str, v: Tensor) -> Tensor:
             parents = v[index]
@@ -304,6 +400,8 @@ class Ex4DGSStrategy(ADCStrategy):
                 kids = torch.where(dynamic[:, None], torch.full_like(parents, 2.0), parents).repeat(
                     self.split_samples, 1
                 )
+            elif key in FRESH:
+                kids = torch.full((self.split_samples * len(index),), FRESH[key]).to(v)
             else:
                 kids = parents.repeat(self.split_samples, *([1] * (v.ndim - 1)))
             return torch.cat([v[~mask], kids])
@@ -312,6 +410,25 @@ class Ex4DGSStrategy(ADCStrategy):
             return torch.cat([v[~mask], v.new_zeros((self.split_samples * len(index), *v.shape[1:]))])
 
         ops.update_params(params, optimizers, children, moments)
+
+    def _jitter(self, centers: Tensor) -> Tensor:
+        """Std of the centre jitter of new dynamic Gaussians ``[M]``: ``max(|c1 - c0| / 3, 2 / I)``."""
+        return torch.maximum(
+            (centers[:, 1] - centers[:, 0]).abs() / 3, torch.full_like(centers[:, 0], 2.0 / self.interval)
+        )
+
+    @torch.no_grad()
+    def _clone(self, params, optimizers, mask: Tensor) -> None:
+        """3DGS clone; copies of dynamic Gaussians get jittered centres and log-widths 2."""
+        n = params["means"].shape[0]
+        ops.duplicate(params, optimizers, mask)
+        copies = torch.arange(n, params["means"].shape[0], device=mask.device)
+        dynamic = params["dynamic"][copies]
+        if bool(dynamic.any()):
+            rows = copies[dynamic]
+            c = params["centers"].data[rows]
+            params["centers"].data[rows] = c + self._jitter(c)[:, None] * torch.randn_like(c)
+            params["widths"].data[rows] = 2.0
 
     @torch.no_grad()
     def _densify_and_prune(self, params, optimizers, state: dict, step: int) -> None:
@@ -322,7 +439,7 @@ class Ex4DGSStrategy(ADCStrategy):
         small = torch.exp(params["scales"]).max(dim=1).values <= self.percent_dense * extent
         candidates = grads >= threshold
         clone, to_split = candidates & small, candidates & ~small
-        ops.duplicate(params, optimizers, clone)
+        self._clone(params, optimizers, clone)
         self._split(params, optimizers, torch.cat([to_split, to_split.new_zeros(int(clone.sum()))]))
         prune = base_opacity(params) < self.prune_opacity
         if step > self.error_prune_from and step % (5 * self.densify_every) == 0:
@@ -332,11 +449,13 @@ class Ex4DGSStrategy(ADCStrategy):
                 (l1 > self.error_l1) | ((ssim > 0) & (ssim < self.error_ssim))
             )
         self._remove_and_record(params, optimizers, state, clone, to_split, prune)
+        for key in RESET_AT_DENSIFY:
+            params[key].data.fill_(FRESH[key])
 
     def step_post_backward(self, params, optimizers, state, step: int, info: dict) -> None:
         super().step_post_backward(params, optimizers, state, step, info)
         if step > self.prune_from and step % self.prune_every == 0:
-            seen = params["weight_max"] > self.invisible_weight
+            seen = params["err_min_time"] >= 0
             thin = params["radius_min"] < self.small_radius
             ops.remove(params, optimizers, ~seen | thin)
             self._reset_stats(state, params["means"].shape[0], params["means"].detach())
@@ -394,7 +513,6 @@ class Ex4DGSExpert(Expert):
             "err_count": torch.zeros(n),
             "err_min": torch.full((n,), 1000.0),
             "err_min_time": torch.full((n,), -1.0),
-            "weight_max": torch.zeros(n),
             "radius_min": torch.full((n,), 1000.0),
         }
         extra = {
@@ -446,6 +564,11 @@ class Ex4DGSExpert(Expert):
             sh=sh_coeffs(s, self.active_sh_degree),
         )
 
+    def clipped(self, camera: Camera) -> Camera:
+        """``camera`` with the config's near plane (N3V 4.0), if any."""
+        near = self.config.near
+        return camera if near is None or near <= camera.near else replace(camera, near=near)
+
     def splat_inputs(self, camera: Camera, background: Tensor | None) -> SplatInputs:
         return SplatInputs(self.frame(camera.time, camera), background, antialiased=True)
 
@@ -454,6 +577,7 @@ class Ex4DGSExpert(Expert):
     ) -> tuple[Tensor, RenderOutput, GaussianFrame]:
         """Antialiased render (0.1 dilation). While training: random background and the back-tracking
         probe (3 extra channels, kept in the graph with zero weight; see ``observe``)."""
+        camera = self.clipped(camera)
         if not self.training:
             return super().render(camera, background, backend, return_stats)
         frame = self.frame(camera.time, camera)
@@ -513,7 +637,6 @@ class Ex4DGSExpert(Expert):
         s["err_count"].add_(seen.float())
         s["err_min_time"].copy_(torch.where(better, frame, s["err_min_time"]))
         s["err_min"].copy_(torch.where(better, l1, s["err_min"]))
-        s["weight_max"].copy_(torch.maximum(s["weight_max"], w))
         if radii is not None:
             s["radius_min"].copy_(
                 torch.where(seen, torch.minimum(s["radius_min"], radii.float()), s["radius_min"])
@@ -607,6 +730,11 @@ class Ex4DGSExpert(Expert):
         for key, value in values.items():
             s[key].data[idx] = value
         s["dynamic"][idx] = True
+        for key in ("err_min", "err_min_time"):  # new dynamic Gaussians start unseen (cgm:1174-1227)
+            s[key].data[idx] = FRESH[key]
+        dynamic = s["dynamic"]
+        for key in RESET_AT_DENSIFY:  # ... and the dynamic set's interval statistics restart
+            s[key].data[dynamic] = FRESH[key]
         return int(idx.numel())
 
     @torch.no_grad()

@@ -23,38 +23,22 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene
-from moegs.experts.base import ParamGroup
-from moegs.experts.canonical import QUICK_ITERATIONS, QUICK_STATIC_ITERATIONS, DeformingExpert
+from moegs.experts.base import DatasetPreset, ParamGroup
+from moegs.experts.canonical import QUICK_STATIC_ITERATIONS, DeformingExpert
 from moegs.experts.gaussian_params import activate, num_sh_bases, sh_coeffs
-from moegs.experts.static import QUICK_RESOLUTION, StaticConfig
+from moegs.experts.static import QUICK_ITERATIONS, QUICK_POINTS, QUICK_RESOLUTION, StaticConfig
 from moegs.fields import Heads, HexPlane, mlp, xavier_weights_
 from moegs.gaussians import GaussianFrame
 from moegs.train.config import TrainConfig
-from moegs.train.strategy import ADCStrategy, ops
+from moegs.train.strategy import NEVER, ADCStrategy, ops
 
-TIME_RESOLUTION = {
-    # kplanes temporal resolution per scene (arguments/dnerf/*.py, arguments/hypernerf/*.py)
-    "dnerf:lego": 25,
-    "dnerf:hellwarrior": 50,
-    "dnerf:hook": 50,
-    "dnerf:bouncingballs": 75,
-    "dnerf:mutant": 75,
-    "dnerf:standup": 75,
-    "dnerf:jumpingjacks": 100,
-    "dnerf:trex": 100,
-    "hypernerf:3dprinter": 100,
-    "hypernerf:broom": 100,
-    "hypernerf:chicken": 80,
-    "hypernerf:banana": 250,
-}
-DATASET_TIME_RESOLUTION = {"n3v": 150, "hypernerf": 150}  # dynerf/hypernerf default.py
-DEFAULT_TIME_RESOLUTION = 25  # ModelHiddenParams kplanes default (D-NeRF scenes without a config)
 SH_COEFFS = num_sh_bases(3)  # the dSH head always predicts all 16 bands x RGB
 
 
@@ -149,8 +133,9 @@ class FourDGSStrategy(ADCStrategy):
     def _prune(self, params, optimizers, state: dict, stage_step: int) -> None:
         prune = torch.sigmoid(params["opacities"]) < self.prune_opacity
         if stage_step > self.reset_every:
-            world = torch.exp(params["scales"]).max(dim=1).values
-            prune |= world > self.prune_world_scale * state["scene_scale"]
+            if self.prune_world_scale is not None:
+                world = torch.exp(params["scales"]).max(dim=1).values
+                prune |= world > self.prune_world_scale * state["scene_scale"]
             if self.prune_screen_size is not None:
                 prune |= state["max_radii"] > self.prune_screen_size
         ops.remove(params, optimizers, prune)
@@ -189,9 +174,9 @@ class FourDGSConfig(StaticConfig):
     """HexPlane channels per plane (``output_coordinate_dim``)."""
     resolution: int = 64
     """Base spatial plane resolution (``kplanes_config.resolution[:3]``)."""
-    time_resolution: int | None = None
-    """Temporal plane resolution; None: the original per-scene value (``TIME_RESOLUTION``), else the
-    dataset default (N3V / HyperNeRF 150, otherwise 25)."""
+    time_resolution: int = 25
+    """Temporal plane resolution (``kplanes_config.resolution[3]``): 25 by default, N3V / HyperNeRF 150,
+    per-scene values in ``SCENE_OVERRIDES``."""
     multires: tuple[int, ...] = (1, 2)
     """Spatial resolution multipliers; features are concatenated over them."""
     width: int = 64
@@ -222,10 +207,36 @@ class FourDGSConfig(StaticConfig):
     """Weight of ``L1t`` (time planes stay near 1)."""
     strategy: FourDGSStrategy = field(default_factory=lambda: FourDGSStrategy(prune_every=8000))
     """Densification: 500-15k every 100, τ 2e-4, reset every 3000, prune every 8000 (D-NeRF)."""
-    background: str = "white"
-    """Background the original trains and evaluates on (``_white_background=True`` always)."""
     train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations=23_000, lambda_dssim=0.0))
     """Coarse + fine iterations, L1 only (``lambda_dssim = 0`` in every 4DGaussians config)."""
+
+    DATASET_PRESETS: ClassVar[dict[str, DatasetPreset]] = {
+        "dnerf": DatasetPreset("paper-dnerf", "arguments/dnerf/dnerf_default.py over arguments/__init__.py"),
+        "n3v": DatasetPreset("paper-n3v", "arguments/dynerf/default.py"),
+        "hypernerf": DatasetPreset("paper-hypernerf", "arguments/hypernerf/default.py"),
+    }
+    DEFAULT_PRESET: ClassVar[str] = "paper-n3v"
+    BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "white"}
+    """``_white_background = True`` as a ``store_true`` flag: it cannot be switched off
+    (``arguments/__init__.py``; ``train.py`` background)."""
+    SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
+        # kplanes temporal resolution (arguments/dnerf/<scene>.py:8, arguments/hypernerf/<scene>.py:7)
+        "dnerf:lego": {"time_resolution": 25},
+        "dnerf:hellwarrior": {"time_resolution": 50},
+        "dnerf:hook": {"time_resolution": 50},
+        "dnerf:bouncingballs": {"time_resolution": 75},
+        "dnerf:mutant": {"time_resolution": 75},
+        "dnerf:standup": {"time_resolution": 75},
+        "dnerf:jumpingjacks": {"time_resolution": 100},
+        "dnerf:trex": {"time_resolution": 100},
+        "hypernerf:3dprinter": {"time_resolution": 100},
+        "hypernerf:broom": {"time_resolution": 100},  # arguments/hypernerf/broom2.py:7
+        "hypernerf:chicken": {"time_resolution": 80},
+        "hypernerf:peel-banana": {"time_resolution": 250},  # arguments/hypernerf/banana.py:7
+        # batch 4: the default of arguments/dynerf/default.py:25; the other scenes' files set 2
+        "n3v:coffee_martini": {"train.batch_size": 4},
+        "n3v:flame_salmon": {"train.batch_size": 4},
+    }
 
     @classmethod
     def presets(cls) -> dict[str, Callable[[], FourDGSConfig]]:
@@ -261,7 +272,7 @@ class FourDGSConfig(StaticConfig):
         return cls(
             max_init_points=None,
             feature_dim=16,
-            time_resolution=None,
+            time_resolution=150,
             multires=(1, 2, 4),
             width=128,
             depth=1,
@@ -274,26 +285,26 @@ class FourDGSConfig(StaticConfig):
         )
 
     @classmethod
-    def quick(cls) -> FourDGSConfig:
-        """CPU minutes on 100x100 D-NeRF, the static baseline's budget (600 iterations)."""
-        coarse = QUICK_STATIC_ITERATIONS  # quick: 3000 + 20000 -> 150 + 450
-        return cls(
-            resolution=32,  # quick: planes 64 (x1, x2) -> 32 (x1, x2) for 100 px images
-            coarse_iterations=coarse,
-            means_lr_max_steps=QUICK_ITERATIONS,  # quick: the decays span a stage of the short run
-            strategy=FourDGSStrategy(
-                coarse_iterations=coarse,
-                densify_from=100,
-                densify_until=450,
-                densify_every=50,
-                reset_every=300,
-                prune_from=100,
-                prune_every=400,
-            ),
-            train=TrainConfig(
-                iterations=QUICK_ITERATIONS, lambda_dssim=0.0, resolution_scale=QUICK_RESOLUTION
-            ),
-        )
+    def quick_fields(cls, paper: FourDGSConfig) -> dict[str, Any]:
+        """CPU minutes on 100x100 D-NeRF: the static baseline's budget (coarse 150 + fine 450)."""
+        coarse = QUICK_STATIC_ITERATIONS  # 3000 + 20000 -> 150 + 450
+        return {
+            "resolution": 32,  # planes 64 (x1, x2) -> 32 (x1, x2) for 100 px images
+            "max_init_points": min(paper.max_init_points or QUICK_POINTS, QUICK_POINTS),  # MVS <= 40k -> 5k
+            "coarse_iterations": coarse,
+            "means_lr_max_steps": QUICK_ITERATIONS,  # the decays span a stage of the short run
+            "strategy.coarse_iterations": coarse,
+            "strategy.densify_from": 100,
+            "strategy.densify_until": 450,
+            "strategy.densify_every": 50,
+            # resets every 300 where the original resets at all (D-NeRF 3000; N3V/HyperNeRF: never)
+            "strategy.reset_every": 300 if paper.strategy.reset_every < paper.train.iterations else NEVER,
+            "strategy.prune_from": 100,
+            "strategy.prune_every": 400,
+            "train.iterations": QUICK_ITERATIONS,
+            "train.batch_size": 1,  # N3V / HyperNeRF batch 2 (4) -> 1 (CPU cost; one view per step)
+            "train.resolution_scale": QUICK_RESOLUTION,
+        }
 
     def __post_init__(self) -> None:
         if self.strategy.coarse_iterations != self.coarse_iterations:
@@ -327,10 +338,7 @@ class FourDGSExpert(DeformingExpert):
     @classmethod
     def from_scene(cls, scene: Scene, config: FourDGSConfig) -> FourDGSExpert:
         splats, scale = cls.canonical(scene, config)
-        time_res = config.time_resolution or TIME_RESOLUTION.get(
-            scene.name, DATASET_TIME_RESOLUTION.get(scene.dataset, DEFAULT_TIME_RESOLUTION)
-        )
-        return cls(config, splats, scale, time_res)
+        return cls(config, splats, scale, config.time_resolution)
 
     @property
     def deforming(self) -> bool:
@@ -341,15 +349,18 @@ class FourDGSExpert(DeformingExpert):
         super().on_step(step)
         return step == self.config.coarse_iterations + 1  # fine stage: fresh optimisers
 
-    def deform(self, splats: Mapping[str, Tensor], t: float, camera: Camera | None = None) -> GaussianFrame:
+    def deform(
+        self, splats: Mapping[str, Tensor], t: float, camera: Camera | None = None, raw_quats: bool = False
+    ) -> GaussianFrame:
         s = splats
         if not self.deforming:
             return activate(s, self.active_sh_degree)
         d = self.fields(s["means"], self.time_column(t, s["means"]))
+        quats = s["quats"] + d["dr"]
         overrides = {
             "means": s["means"] + d["dx"],
             "scales": torch.exp(s["scales"] + d["ds"]),
-            "quats": nn.functional.normalize(s["quats"] + d["dr"], dim=-1),
+            "quats": quats if raw_quats else nn.functional.normalize(quats, dim=-1),
         }
         if "do" in d:
             overrides["opacities"] = torch.sigmoid(s["opacities"] + d["do"][:, 0])
@@ -393,4 +404,4 @@ class FourDGSExpert(DeformingExpert):
         return [replace(g, start_step=c.coarse_iterations) for g in groups]  # schedules restart when fine
 
 
-__all__ = ["FourDGSConfig", "FourDGSExpert", "FourDGSField", "FourDGSStrategy", "TIME_RESOLUTION"]
+__all__ = ["FourDGSConfig", "FourDGSExpert", "FourDGSField", "FourDGSStrategy"]

@@ -9,18 +9,39 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any, ClassVar
 
 import torch
 
 from moegs.camera import Camera
 from moegs.data.scene import PointCloud, Scene
-from moegs.experts.base import Expert, ExpertConfig, ParamGroup, splat_param_groups
+from moegs.experts.base import DatasetPreset, Expert, ExpertConfig, ParamGroup, splat_param_groups
 from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats
 from moegs.gaussians import GaussianFrame
 from moegs.train.config import TrainConfig
-from moegs.train.strategy import ADCStrategy, Strategy
+from moegs.train.strategy import NEVER, ADCStrategy, Strategy
 
 QUICK_RESOLUTION = 0.125  # quick presets: D-NeRF 800x800 -> 100x100 so a run takes about a minute on 2 cores
+QUICK_ITERATIONS = (
+    600  # quick presets: the static baseline's 30k -> 600 (50x shorter), shared by every expert
+)
+QUICK_POINTS = (
+    5000  # quick presets: at most 5k initial points (D-NeRF's 100k random points; CPU rasterizer cost)
+)
+
+
+def quick_step(step: int, iterations: int) -> int:
+    """Iteration ``step`` of an ``iterations``-long schedule moved to the same fraction of the quick run
+    (``NEVER`` stays never)."""
+    return step if step >= NEVER else round(step * QUICK_ITERATIONS / iterations)
+
+
+QUICK_DENSIFY = {  # quick: 3DGS ADC 500-15k every 100, reset every 3000 -> 100-450 every 50, reset at 300
+    "strategy.densify_from": 100,
+    "strategy.densify_until": 450,
+    "strategy.densify_every": 50,
+    "strategy.reset_every": 300,
+}
 
 
 @dataclass
@@ -57,20 +78,26 @@ class StaticConfig(ExpertConfig):
     """Densification (3DGS adaptive density control)."""
     train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations=30_000, lambda_dssim=0.2))
 
+    DATASET_PRESETS: ClassVar[dict[str, DatasetPreset]] = {
+        "*": DatasetPreset("paper", "graphdeco 3DGS arguments/__init__.py: one recipe for every dataset")
+    }
+    BACKGROUNDS: ClassVar[dict[str, str]] = {"dnerf": "white", "*": "black"}
+    """3DGS trains Blender-synthetic scenes with ``-w`` (README), real captures on black."""
+
     @classmethod
     def presets(cls) -> dict[str, Callable[[], StaticConfig]]:
         return {"paper": cls, "quick": cls.quick}
 
     @classmethod
-    def quick(cls) -> StaticConfig:
-        """CPU minutes: 100x100, 600 iterations, schedules compressed by 3DGS's ratios."""
-        iterations = 600  # quick: 30k -> 600 (50x shorter)
-        return cls(
-            max_init_points=5000,  # quick: D-NeRF's 100k random points -> 5k (CPU rasterizer cost)
-            means_lr_max_steps=iterations,  # quick: decay over the whole short run, as 3DGS does over 30k
-            strategy=ADCStrategy(densify_from=100, densify_until=450, densify_every=50, reset_every=300),
-            train=TrainConfig(iterations=iterations, lambda_dssim=0.2, resolution_scale=QUICK_RESOLUTION),
-        )
+    def quick_fields(cls, paper: StaticConfig) -> dict[str, Any]:
+        """CPU minutes: 600 iterations, 5k initial points, 1/8 resolution, ADC compressed to the short run."""
+        return {
+            "max_init_points": QUICK_POINTS,
+            "means_lr_max_steps": QUICK_ITERATIONS,  # decay over the whole short run, as 3DGS over 30k
+            **QUICK_DENSIFY,
+            "train.iterations": QUICK_ITERATIONS,
+            "train.resolution_scale": QUICK_RESOLUTION,
+        }
 
 
 def scene_points(scene: Scene) -> PointCloud:

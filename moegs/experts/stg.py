@@ -31,13 +31,16 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import PointCloud, Scene, View
+from moegs.experts import stg_guided
 from moegs.experts.base import (
+    DatasetPreset,
     Expert,
     ExpertConfig,
     ParamGroup,
@@ -46,14 +49,13 @@ from moegs.experts.base import (
     render_splat_inputs,
     splat_param_groups,
 )
-from moegs.experts.canonical import QUICK_ITERATIONS
 from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats
-from moegs.experts.static import QUICK_RESOLUTION, scene_points, thin_points
+from moegs.experts.static import QUICK_ITERATIONS, QUICK_POINTS, QUICK_RESOLUTION, scene_points, thin_points
 from moegs.experts.stg_decoder import FeatureDecoder
 from moegs.gaussians import GaussianFrame
 from moegs.render import RenderOutput
 from moegs.train.config import TrainConfig
-from moegs.train.strategy import ADCStrategy, Strategy, ops
+from moegs.train.strategy import NEVER, ADCStrategy, Strategy, ops
 
 COLOR_MODELS = ("full", "sh", "lite")
 TIME_EPS = 1e-6  # times within this of a segment start belong to it (float32 vs float64 frame times)
@@ -146,8 +148,10 @@ class STGConfig(ExpertConfig):
     views_per_step: int = 2
     """Cameras of one timestamp per step (STG ``batch = 2``; 1 on monocular data)."""
     strategy: Strategy = field(default_factory=lambda: STGStrategy())
-    train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations=30_000, lambda_dssim=0.2))
-    """30k iterations; loss 0.8 L1 + 0.2 (1 - SSIM)."""
+    train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations=25_000, lambda_dssim=0.2))
+    """Loss 0.8 L1 + 0.2 (1 - SSIM). STG trains 30k iterations but reports the checkpoint of
+    ``test_iteration`` (``configs/n3d_full/*.json:6``: 25k); training to it with the 30k position decay
+    (``means_lr_max_steps``) reproduces that checkpoint (saved before its densify and step)."""
 
     def __post_init__(self) -> None:
         if self.color not in COLOR_MODELS:
@@ -155,9 +159,55 @@ class STGConfig(ExpertConfig):
         if self.views_per_step < 1:
             raise ValueError(f"STGConfig.views_per_step must be >= 1, got {self.views_per_step}")
 
+    DATASET_PRESETS: ClassVar[dict[str, DatasetPreset]] = {
+        "n3v": DatasetPreset(
+            "paper-n3v", "configs/n3d_full/*.json over thirdparty/gaussian_splatting/arguments"
+        ),
+        "technicolor": DatasetPreset("paper-technicolor", "configs/techni_full/*.json"),
+    }
+    BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "black"}
+    """Black (``arguments/__init__.py:69``; ``train.py:91``)."""
+    SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
+        # densify mode 2 (configs/n3d_full/<scene>.json:4-7; helper_train.py:233-256): opacity pruning up to
+        # 8900, the ω mask only to 8999, nothing after 9000; evaluated at test_iteration (:6)
+        **{
+            f"n3v:{name}": {
+                "scales_lr": 3e-3,
+                "strategy.prune_until": 9000,
+                "strategy.omega_mask_until": 8999,
+                "strategy.z_prune_every": None,
+                "strategy.bbox_prune_at": None,
+                "train.iterations": steps,
+            }
+            for name, steps in (("coffee_martini", 10_000), ("flame_salmon", 12_000))
+        },
+    }
+
     @classmethod
     def presets(cls) -> dict[str, Callable[[], STGConfig]]:
-        return {"paper": cls, "quick": cls.quick, "moe_sh": cls.moe_sh}
+        return {
+            "paper": cls,
+            "paper-n3v": cls.paper_n3v,
+            "paper-technicolor": cls.paper_technicolor,
+            "quick": cls.quick,
+            "moe_sh": cls.moe_sh,
+        }
+
+    @classmethod
+    def paper_n3v(cls) -> STGConfig:
+        """The defaults plus N3V's z < 4.5 prunes (``train.py:149-152``; ``helper_train.py:223-226``)."""
+        return cls(strategy=STGStrategy(prune_z_below=4.5))
+
+    @classmethod
+    def paper_technicolor(cls) -> STGConfig:
+        """``configs/techni_full/*.json`` (densify mode 3): scaling lr 5e-3 (:4), ``trbfslinit`` 2 (:5),
+        12 densification events (:9), the clamping decoder ``sandwichnoact`` (:11); only the bbox prune."""
+        return cls(
+            decoder_activation="clamp",
+            trbf_scale_init=-2.0,
+            scales_lr=5e-3,
+            strategy=STGStrategy(max_densify_events=12, omega_mask_from=None, z_prune_every=None),
+        )
 
     @classmethod
     def moe_sh(cls) -> STGConfig:
@@ -165,36 +215,64 @@ class STGConfig(ExpertConfig):
         return cls(color="sh", optimizer="radam", antialiased=True, segment_frames=150)
 
     @classmethod
-    def quick(cls) -> STGConfig:
-        """CPU minutes: full model, every schedule shrunk from 30k to 600 iterations."""
-        iterations = QUICK_ITERATIONS  # quick: 30k -> the static baseline's 600 (50x shorter)
-        return cls(
-            max_init_points=5000,  # quick: CPU rasterizer cost
-            means_lr_max_steps=iterations,
-            strategy=STGStrategy(
-                densify_from=20,
-                densify_until=360,
-                densify_every=25,
-                max_densify_events=10,
-                prune_until=360,
-                reset_at=(180,),
-            ),
-            # quick: 500/9000/100 -> 20/360/25 with 10 events (STG 6), one reset (STG 3000 and 6000)
-            train=TrainConfig(iterations=iterations, lambda_dssim=0.2, resolution_scale=QUICK_RESOLUTION),
-        )
+    def own_frame_fields(cls, config: STGConfig, dataset: str, real: bool) -> dict[str, Any]:
+        """The z < 4.5 prune holds in real N3V's LLFF world frame only."""
+        own = dataset == "n3v" and real
+        return {} if own or config.strategy.prune_z_below is None else {"strategy.prune_z_below": None}
+
+    @classmethod
+    def quick_fields(cls, paper: STGConfig) -> dict[str, Any]:
+        """CPU minutes: 600 iterations; densification 20-360 every 25 with 10 events (STG 500-9000 every 100,
+        6 events) and one reset at 180 (STG 3000 and 6000); the later steps at the same place relative to
+        the densification window (x 360 / 9000)."""
+        s = paper.strategy
+
+        def at(step: int | None) -> int | None:
+            return None if step is None or step >= NEVER else round(step * 360 / s.densify_until)
+
+        return {
+            "max_init_points": QUICK_POINTS,
+            "means_lr_max_steps": QUICK_ITERATIONS,
+            "strategy.densify_from": 20,
+            "strategy.densify_until": 360,
+            "strategy.densify_every": 25,
+            "strategy.max_densify_events": 10,
+            "strategy.prune_until": 360,
+            "strategy.reset_at": (180,),
+            "strategy.omega_mask_from": at(s.omega_mask_from),
+            "strategy.omega_mask_until": at(s.omega_mask_until) if s.omega_mask_until < NEVER else NEVER,
+            "strategy.z_prune_every": at(s.z_prune_every),
+            "strategy.bbox_prune_at": at(s.bbox_prune_at),
+            "strategy.guided_from": at(s.guided_from),
+            "strategy.guided_gap": at(s.guided_gap),
+            "train.iterations": QUICK_ITERATIONS,
+            "train.resolution_scale": QUICK_RESOLUTION,
+        }
 
 
 # -- densification -----------------------------------------------------------------------------------------
 @dataclass
 class STGStrategy(ADCStrategy):
-    """STG ``controlgaussians`` (densify modes 1/3): the 3DGS statistics, then
+    """STG ``controlgaussians`` and the scheduled steps around it (``helper_train.py``, ``train.py``):
 
     * every ``densify_every`` iterations in (``densify_from``, ``densify_until``): the first
       ``max_densify_events`` events clone/split (no pruning: STG builds the prune mask but never applies
       it) and give every new Gaussian a time centre ``μτ ~ U(0, 1)``; later events prune opacity <
       ``prune_opacity`` while ``step < prune_until``;
-    * opacity reset to ``min(o, 0.01)`` at the iterations ``reset_at``.
+    * opacity reset to ``min(o, 0.01)`` at the iterations ``reset_at``;
+    * from ``omega_mask_from`` (8001) to ``omega_mask_until``: only "moving" Gaussians (``‖b1‖₁`` > 0.3,
+      0.2 < max scale < 0.6, opacity > 0.7) learn ω, only the others learn their base rotation
+      (``helper_train.py:196-203,219-222``; ``oursfull.py:432-448``): ω is zeroed for the others and its
+      Adam moments for all at the first step, gradients are masked at every later one;
+    * world z < ``prune_z_below`` removed at step 1 (STG prunes the initial points, ``train.py:149-152``;
+      here after the first render) and, after ``densify_until``, every ``z_prune_every`` iterations (at
+      ``k z_prune_every + z_prune_every / 2``; N3V, ``helper_train.py:223-226``);
+    * at ``bbox_prune_at`` (10000): remove Gaussians outside the initial cloud's box (``helper_train.py:
+      177-190,227-228``);
+    * error-guided sampling from ``guided_from`` (``moegs.experts.stg_guided``).
 
+    Densify modes of the original: 1 (N3V) = the defaults; 2 (coffee_martini, flame_salmon_1) = prune until
+    9000, ω mask to 8999, no late prunes; 3 (Technicolor) = 12 events, bbox prune only.
     Deviation: the screen-space statistics use both views of a step (STG: only the last one).
     """
 
@@ -208,11 +286,40 @@ class STGStrategy(ADCStrategy):
     """Opacity pruning after the densification events stops here (modes 1/3: 7000; mode 2: 9000)."""
     reset_at: tuple[int, ...] = (3000, 6000)
     """Opacity resets (``opacity_reset_interval`` 3000 below ``densify_until`` 9000)."""
+    omega_mask_from: int | None = 8001
+    """First iteration of the ω / rotation split (None: never; Technicolor)."""
+    omega_mask_until: int = NEVER
+    """Last iteration with masked gradients (mode 1: to the end; mode 2: 8999)."""
+    prune_z_below: float | None = None
+    """World z below which Gaussians are removed (N3V: 4.5 in its LLFF world frame; None: no z prune)."""
+    z_prune_every: int | None = 1000
+    """Period of the z prune after ``densify_until`` (None: only the initial prune; modes 2 and 3)."""
+    bbox_prune_at: int | None = 10_000
+    """Iteration of the bounding-box prune (None: never; mode 2)."""
+    guided_from: int | None = 1600
+    """``emsstart``: error-guided sampling starts collecting SSIMs here (None: off)."""
+    guided_events: int = 2
+    """Cameras selected for guided sampling (the two worst)."""
+    guided_gap: int = 100
+    """Events are more than this many iterations apart."""
+    guided_select_ssim: float = 0.91
+    """Only cameras whose SSIM is below this are candidates."""
+    guided_event_ssim: float = 0.88
+    """An event adds Gaussians only when the view's SSIM is below this."""
+    guided_quantile: float = 0.6
+    """``emsthr``: pixels above this quantile of the error are bad."""
+    guided_depths: tuple[float, ...] = (0.7, 7.5)
+    """``raystart`` / ``rayends`` with ``farray`` 2: new Gaussians at these multiples of the far depth."""
     time_key: str = "trbf_center"
+
+    @property
+    def needs_views(self) -> bool:
+        return self.guided_from is not None
 
     def initialize_state(self, scene_scale: float, white_background: bool = False) -> dict:
         state = super().initialize_state(scene_scale, white_background)
-        state["events"] = 0
+        state.update(events=0, omega_mask=None)
+        state["guided"] = {"phase": "off", "ssim": {}, "selected": [], "events": 0, "last": 0}
         return state
 
     @torch.no_grad()
@@ -232,7 +339,80 @@ class STGStrategy(ADCStrategy):
             centres.data[-new:] = torch.rand(new, device=centres.device, dtype=centres.dtype)
         state["last_refine"] = {"clone": int(clone.sum()), "split": int(to_split.sum())}
 
+    def _remove(self, params, optimizers, state: dict, prune: Tensor) -> None:
+        """Remove ``prune`` rows and keep the ω mask aligned."""
+        if not bool(prune.any()):
+            return
+        ops.remove(params, optimizers, prune)
+        if state["omega_mask"] is not None:
+            state["omega_mask"] = state["omega_mask"][~prune]
+        self._reset_stats(state, params["means"].shape[0], params["means"].detach())
+
+    @torch.no_grad()
+    def _omega_mask(self, params, optimizers, state: dict, step: int) -> None:
+        if step == self.omega_mask_from:
+            speed = params["motion"][:, 0:3].abs().sum(-1)
+            size = torch.exp(params["scales"]).max(-1).values
+            moving = (speed > 0.3) & (size > 0.2) & (size < 0.6) & (torch.sigmoid(params["opacities"]) > 0.7)
+            state["omega_mask"] = moving
+            ops.update_params(
+                params,
+                optimizers,
+                lambda k, v: v * moving[:, None].to(v),
+                lambda k, v: torch.zeros_like(v),
+                keys=["omega"],
+            )
+        elif self.omega_mask_from < step <= self.omega_mask_until and state["omega_mask"] is not None:
+            moving = state["omega_mask"]
+            if params["omega"].grad is not None:
+                params["omega"].grad.mul_(moving[:, None].to(params["omega"].grad))
+            if params["quats"].grad is not None:
+                params["quats"].grad.mul_((~moving)[:, None].to(params["quats"].grad))
+
+    @torch.no_grad()
+    def _guided(self, params, optimizers, state: dict, step: int, info: dict) -> None:
+        g = state["guided"]
+        views = info.get("views", [])
+        if step == self.guided_from:
+            g["phase"] = "collect"
+        if g["phase"] == "collect":
+            for v in views:
+                g["ssim"].setdefault(str(v["camera"].camera_id), stg_guided.view_ssim(v["rgb"], v["target"]))
+            if len(g["ssim"]) >= len(state["far_depth"]):
+                worst = sorted((s, c) for c, s in g["ssim"].items() if s < self.guided_select_ssim)
+                picked = [c for _, c in worst[: self.guided_events]]
+                g["selected"] = picked if len(picked) >= self.guided_events else []
+                g["phase"] = "selected" if g["selected"] else "done"
+            return
+        if g["phase"] != "selected" or not views or step <= self.guided_from:
+            return
+        last = views[-1]
+        cam, key = last["camera"], str(last["camera"].camera_id)
+        if key not in g["selected"] or step - g["last"] <= self.guided_gap:
+            return
+        g["selected"].remove(key)
+        g["events"] += 1
+        g["last"] = step
+        if not g["selected"]:
+            g["phase"] = "done"
+        if stg_guided.view_ssim(last["rgb"], last["target"]) >= self.guided_event_ssim:
+            return
+        pixels = stg_guided.error_pixels(last["rgb"], last["target"], self.guided_quantile)
+        depth = state["far_depth"].get(key, 0.0)
+        if len(pixels) == 0 or depth <= 0:
+            return
+        points = stg_guided.pixel_points(cam, pixels, depth, self.guided_depths)
+        colours = last["target"][pixels[:, 0], pixels[:, 1]].repeat(len(self.guided_depths), 1)
+        ops.append(params, optimizers, stg_guided.new_rows(params, points, colours, state["trbf_scale_init"]))
+        self._reset_stats(state, params["means"].shape[0], params["means"].detach())
+        if state["omega_mask"] is not None:
+            pad = state["omega_mask"].new_zeros(len(points))
+            state["omega_mask"] = torch.cat([state["omega_mask"], pad])
+        state["last_refine"] = {"guided": len(points)}
+
     def step_post_backward(self, params, optimizers, state, step: int, info: dict) -> None:
+        if step == 1 and self.prune_z_below is not None:  # STG prunes the initial points (train.py:149-152)
+            self._remove(params, optimizers, state, params["means"][:, 2] < self.prune_z_below)
         if step < self.densify_until:
             self._update_stats(params, state, info)
             if step > self.densify_from and step % self.densify_every == 0:
@@ -240,10 +420,23 @@ class STGStrategy(ADCStrategy):
                     self._clone_and_split(params, optimizers, state)
                     state["events"] += 1
                 elif step < self.prune_until:
-                    ops.remove(params, optimizers, torch.sigmoid(params["opacities"]) < self.prune_opacity)
+                    self._remove(
+                        params, optimizers, state, torch.sigmoid(params["opacities"]) < self.prune_opacity
+                    )
                 self._reset_stats(state, params["means"].shape[0], params["means"].detach())
+        if self.omega_mask_from is not None and step >= self.omega_mask_from:
+            self._omega_mask(params, optimizers, state, step)
+        late = step >= self.densify_until and self.z_prune_every
+        if late and self.prune_z_below is not None and step % self.z_prune_every == self.z_prune_every // 2:
+            self._remove(params, optimizers, state, params["means"][:, 2] < self.prune_z_below)
+        if step == self.bbox_prune_at:
+            lo, hi = state["bbox"]
+            xyz = params["means"]
+            self._remove(params, optimizers, state, ((xyz < lo) | (xyz > hi)).any(-1))
         if step in self.reset_at:
             ops.reset_opacity(params, optimizers, self.reset_value)
+        if self.guided_from is not None and step >= self.guided_from:
+            self._guided(params, optimizers, state, step, info)
 
 
 # -- expert ------------------------------------------------------------------------------------------------
@@ -380,6 +573,25 @@ class STGExpert(Expert):
 
     def strategy(self) -> Strategy:
         return self.config.strategy
+
+    @torch.no_grad()
+    def strategy_inputs(self, scene: Scene) -> dict:
+        """The initial cloud's box (bbox prune), ``sτ`` of new Gaussians and, with guided sampling, each
+        training camera's far depth at the first frame under the initial model (STG's census)."""
+        means = self.splats["means"].detach()
+        out = {
+            "bbox": [means.min(0).values, means.max(0).values],
+            "trbf_scale_init": self.config.trbf_scale_init,
+        }
+        if isinstance(self.config.strategy, STGStrategy) and self.config.strategy.guided_from is not None:
+            first = min(v.camera.time for v in scene.train)
+            out["far_depth"] = {}
+            for view in scene.train:
+                if view.camera.time == first:
+                    _, rendered, _ = self.render(view.camera, scene.background)
+                    depth = stg_guided.far_depth(rendered.depth, rendered.alpha)
+                    out["far_depth"][str(view.camera.camera_id)] = depth
+        return out
 
 
 # -- segments ---------------------------------------------------------------------------------------------

@@ -5,7 +5,12 @@ Facts from ``JiaweiXu8/Grid4D`` (``hashencoder/``, torch-ngp style; ``specs/expe
 * Input ``u [N, D]`` in [0, 1]; a point with **any** coordinate outside [0, 1] gets zero features
   at every level (and no gradient).
 * Per dimension ``d``: growth ``s_d = (desired_d / base_d) ** (1 / (L - 1))``. At level ``l``:
-  ``scale_d = base_d * s_d**l - 1``, ``res_d = ceil(scale_d) + 1``, ``pos_d = u_d * scale_d``.
+  ``scale_d = base_d * s_d**l - 1``, ``res_d = ceil(scale_d) + 1``, ``pos_d = u_d * scale_d``, computed
+  in **float32** as the kernel does (``exp2f(l * log2(s)) * base - 1``, ``hashencoder.cu:157-158``;
+  Python passes float32 ``s`` and ``base``, ``hashgrid.py:33,154-155``). Table sizes come from the
+  Python side in float64 (``ceil(base * s**l)``, ``hashgrid.py:145-151``), so a level whose float32
+  resolution rounds up past its table is hashed: the finest D-NeRF temporal level (33 x 33 x 16 >
+  32 x 32 x 16 rows).
 * The 2^D corners of the cell ``floor(pos)`` are blended with **smoothstep** weights
   ``w(f) = f^2 (3 - 2 f)`` of the fractional part ``f`` (not linear).
 * Table size ``T_l = min(2^log2_hashmap_size, prod_d res_d)``. If ``prod_d res_d <= T_l`` the level is
@@ -23,6 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -76,12 +82,15 @@ class HashGrid(nn.Module):
             for b, h in zip(self.base, self.desired, strict=True)
         ]
         max_size = 2**log2_hashmap_size
+        log2_growth = np.log2(np.array(growth, dtype=np.float32))  # float32, as the kernel receives it
+        base32 = np.array(self.base, dtype=np.float32)
         scales, res, sizes = [], [], []
         for level in range(num_levels):
-            scale = [b * g**level - 1.0 for b, g in zip(self.base, growth, strict=True)]
-            scales.append(scale)
-            res.append([math.ceil(s) + 1 for s in scale])
-            sizes.append(min(max_size, math.prod(res[-1])))
+            scale = np.exp2(np.float32(level) * log2_growth) * base32 - np.float32(1.0)
+            scales.append(scale.tolist())
+            res.append([math.ceil(s) + 1 for s in scale.tolist()])
+            table = math.prod(math.ceil(b * g**level) for b, g in zip(self.base, growth, strict=True))
+            sizes.append(min(max_size, table))
         res_t = torch.tensor(res, dtype=torch.long)  # [L, D]
         strides = torch.cumprod(torch.cat([torch.ones(num_levels, 1, dtype=torch.long), res_t[:, :-1]], 1), 1)
         self.register_buffer("scales", torch.tensor(scales, dtype=torch.float32), persistent=False)  # [L, D]

@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import typing
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, Self
 
 _TYPE = "_type"
@@ -88,3 +88,54 @@ def from_dict(cls: type, data: dict) -> Any:
         else:
             kwargs[name] = value
     return cls(**kwargs)
+
+
+# -- dotted field access (recipes) -------------------------------------------------------------------
+def with_fields(config: Any, changes: Mapping[str, Any]) -> Any:
+    """A copy of the dataclass ``config`` with dotted fields replaced (``"strategy.densify_every"``).
+
+    Nested dataclasses are rebuilt bottom-up with ``dataclasses.replace``, so ``__post_init__`` checks
+    see the final values of every level at once. Unknown names raise ``KeyError`` naming the valid ones.
+    """
+    if not changes:
+        return config
+    top: dict[str, Any] = {}
+    nested: dict[str, dict[str, Any]] = {}
+    names = {f.name for f in dataclasses.fields(config)}
+    for dotted, value in changes.items():
+        head, _, rest = dotted.partition(".")
+        if head not in names:
+            raise KeyError(
+                f"{type(config).__name__} has no field {head!r} (in {dotted!r}); fields: {sorted(names)}"
+            )
+        if rest:
+            nested.setdefault(head, {})[rest] = value
+        else:
+            top[head] = value
+    for head, sub in nested.items():
+        inner = top.get(head, getattr(config, head))
+        if not dataclasses.is_dataclass(inner):
+            raise KeyError(f"{type(config).__name__}.{head} is not a dataclass; cannot set {list(sub)}")
+        top[head] = with_fields(inner, sub)
+    return dataclasses.replace(config, **top)
+
+
+def get_field(config: Any, dotted: str) -> Any:
+    """The value of a dotted field (``"train.iterations"``)."""
+    value = config
+    for part in dotted.split("."):
+        value = getattr(value, part)
+    return value
+
+
+def changed_fields(a: Any, b: Any, prefix: str = "") -> list[str]:
+    """Dotted names of the leaf fields whose values differ between two configs of one class."""
+    out = []
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        name = prefix + f.name
+        if dataclasses.is_dataclass(x) and type(x) is type(y):
+            out += changed_fields(x, y, name + ".")
+        elif x != y:
+            out.append(name)
+    return out

@@ -10,17 +10,22 @@ Per frame at time t, for Gaussian i with gates ``G_i(t)`` (``moegs.mode.gating``
                                                 the others see a detached copy (paper: gradient blocking)
     means, quats, scales = sum_e G_ie(t) A_e(t) (quats renormalised); opacity and SH from the base
 
-Paper vs authors' code (``specs/official_moegs.md`` section 6), each a config field, paper as default:
-mixed attributes (paper: the deformed position, rotation and scale; code: position and rotation only),
-one gate for all mixed attributes (paper) or one per attribute (code), std-normalisation of the scores
-before the softmax (code only), control points (code configs: 3). Regularisers: the base's only (the
-code adds no Grid4D or E-D3DGS term). Training: the base's pipeline (stages, densification, loss).
+Paper vs authors' code (``specs/official_moegs.md`` section 6), each a config field (dataclass defaults:
+the paper's wording): mixed attributes (paper: the deformed position, rotation and scale; code: position
+and rotation only), one gate for all mixed attributes (paper) or one per attribute (code), std-normalisation
+of the scores before the softmax (code only), control points (code configs: 3). Quaternions are mixed as
+the experts output them before normalisation, then normalised (code). The paper's numbers come from the
+code, so the recipes (``moegs.recipes``) use the ``code`` / ``quick`` presets; ``paper`` / ``quick-paper``
+are the wording variants. Members take their recipe for the scene's dataset. Regularisers: the base's
+only (the code adds no Grid4D or E-D3DGS term). Training: the base's pipeline (stages, densification,
+loss); background white (``arguments_MoDE/__init__.py``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
@@ -28,10 +33,10 @@ from torch import Tensor, nn
 from moegs.camera import Camera
 from moegs.data.scene import Scene, View
 from moegs.experts import get_expert_class
-from moegs.experts.base import Expert, ExpertConfig, ParamGroup
+from moegs.experts.base import DatasetPreset, Expert, ExpertConfig, ParamGroup
+from moegs.experts.static import QUICK_ITERATIONS, QUICK_RESOLUTION
 from moegs.gaussians import GaussianFrame
 from moegs.mode.gating import top_k_gates, warmup_scores, weight_spline
-from moegs.train.config import TrainConfig
 from moegs.train.strategy.base import Strategy
 
 CANONICAL_EXPERTS = ("fourdgs", "grid4d", "ed3dgs")
@@ -47,8 +52,9 @@ class MoDEConfig(ExpertConfig):
 
     experts: tuple[str, ...] = ("fourdgs", "ed3dgs")
     """Deformation experts, the base (canonical-space owner) first."""
-    member_preset: str = "quick"
-    """Preset of every member expert's own config (its ``train`` is replaced by this config's)."""
+    member_preset: str = "paper"
+    """Recipe preset (``moegs.recipes``) of every member on the scene's dataset (``paper`` or ``quick``);
+    each member's ``train`` is replaced by this config's."""
     control_points: int = 3
     """Spline control points N_w (code default 18; the MoDE configs use 3, coffee_martini 5)."""
     top_k: int = 2
@@ -59,6 +65,9 @@ class MoDEConfig(ExpertConfig):
     """One gate per mixed attribute (code: spline channels [0:E] position, [E:2E] rotation) instead of one."""
     std_normalize: bool = False
     """Divide scores by their std across experts before the softmax (code only)."""
+    mix_raw_quats: bool = True
+    """Mix the experts' deformed quaternions before normalisation, then normalise (code); False mixes the
+    unit quaternions."""
     warmup_iterations: int = 3000
     """Random gating for this many iterations after the base starts deforming (code 3000)."""
     control_init_std: float = 0.01
@@ -87,38 +96,55 @@ class MoDEConfig(ExpertConfig):
     def num_gates(self) -> int:
         return len(self.experts) * (len(self.mixed) if self.gate_per_attribute else 1)
 
+    DATASET_PRESETS: ClassVar[dict[str, DatasetPreset]] = {
+        "*": DatasetPreset("code", "authors' MoDE code (train_emb.py / train_hash.py, arguments_MoDE/)")
+    }
+    BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "white"}
+    """``arguments_MoDE/__init__.py`` sets ``white_background=True``."""
+
     @classmethod
     def presets(cls) -> dict[str, Callable[[], MoDEConfig]]:
-        """``quick`` (CPU minutes: the members' quick presets, warm-up scaled with the run), ``paper``
-        (4DGaussians pipeline of the code: coarse 3000 + fine 30000 iterations, batch 4), ``code`` (paper
-        scale with the code's conventions: position + rotation, one gate each, std-normalised)."""
-
-        def base_train(preset: str) -> TrainConfig:
-            return get_expert_class("fourdgs").config_class.from_preset(preset).train
+        """``code`` (the 4DGaussians pipeline of the authors' code: coarse 3000 + fine 30000 iterations,
+        batch 4, position + rotation mixed with one gate each, std-normalised scores), ``paper`` (the same
+        pipeline with the paper's wording), and their CPU reductions ``quick`` / ``quick-paper``."""
 
         def paper() -> MoDEConfig:
-            return cls(
-                member_preset="paper",
-                train=replace(base_train("paper"), iterations=3000 + 30_000, batch_size=4),
-            )
+            base = get_expert_class("fourdgs").config_class.from_preset("paper-n3v").train
+            return cls(train=replace(base, iterations=3000 + 30_000, batch_size=4))
+
+        def code() -> MoDEConfig:
+            return replace(paper(), mixed=("means", "quats"), gate_per_attribute=True, std_normalize=True)
+
+        def quick(config: MoDEConfig) -> MoDEConfig:
+            from moegs.recipes import with_fields
+
+            return with_fields(config, cls.quick_fields(config))
 
         return {
-            "quick": lambda: cls(
-                warmup_iterations=100,  # quick: 3000 of 30000 fine steps -> 100 of 450
-                gate_lr_max_steps=600,  # quick: the decay spans the short run
-                train=base_train("quick"),
-            ),
+            "code": code,
             "paper": paper,
-            "code": lambda: replace(
-                paper(), mixed=("means", "quats"), gate_per_attribute=True, std_normalize=True
-            ),
+            "quick": lambda: quick(code()),
+            "quick-paper": lambda: quick(paper()),
+        }
+
+    @classmethod
+    def quick_fields(cls, paper: MoDEConfig) -> dict[str, Any]:
+        """CPU minutes: the members' quick recipes, 600 iterations, one view per step."""
+        return {
+            "member_preset": "quick",
+            "warmup_iterations": 100,  # 3000 of 30000 fine steps -> 100 of 450
+            "gate_lr_max_steps": QUICK_ITERATIONS,  # the decay spans the short run
+            "train.iterations": QUICK_ITERATIONS,
+            "train.batch_size": 1,  # batch 4 -> 1 (CPU cost)
+            "train.resolution_scale": QUICK_RESOLUTION,
         }
 
 
 def _member(name: str, scene: Scene, config: MoDEConfig) -> Expert:
-    cls = get_expert_class(name)
-    member_config = cls.config_class.from_preset(config.member_preset)
-    return cls.from_scene(scene, replace(member_config, train=config.train))
+    from moegs.recipes import config_for
+
+    member = config_for(name, scene.name, config.member_preset, dataset=scene.dataset).config
+    return get_expert_class(name).from_scene(scene, replace(member, train=config.train))
 
 
 class MoDEExpert(Expert):
@@ -178,11 +204,12 @@ class MoDEExpert(Expert):
 
     # -- frames ------------------------------------------------------------------------------------------
     def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
-        base_frame = self.base.deform(self.splats, t, camera)
+        raw = self.config.mix_raw_quats and "quats" in self.config.mixed
+        base_frame = self.base.deform(self.splats, t, camera, raw_quats=raw)
         if not getattr(self.base, "deforming", True):
             return base_frame  # the base's static (coarse) stage: no deformation at all
         detached = {k: (v.detach() if k in self.canonical_keys else v) for k, v in self.splats.items()}
-        frames = [base_frame] + [m.deform(detached, t, camera) for m in self.members[1:]]
+        frames = [base_frame] + [m.deform(detached, t, camera, raw_quats=raw) for m in self.members[1:]]
         gates = self.gates(t)
         e = len(frames)
         mixed = {}

@@ -13,10 +13,10 @@ pruning), ``distill`` (MoE-GS into one expert), ``lift`` (gate responsibilities 
 fusion), ``visualize`` (gate maps).
 """
 
-from moegs.moe.config import ROUTERS, RouterConfig
+from moegs.moe.config import ROUTERS, RouterConfig, router_preset
 from moegs.moe.distill import DistillConfig, distill
 from moegs.moe.lift import compute_responsibilities, lift
-from moegs.moe.model import MoEGS, load_moe
+from moegs.moe.model import MoEGS, load_moe, region_shares, winner_coherence
 from moegs.moe.prune import gate_importance, prune
 from moegs.moe.routers import MoERender, PixelRouter, VolumeAwarePixelRouter, VolumeRouter
 from moegs.moe.train import evaluate_moe, train_router
@@ -28,6 +28,7 @@ __all__ = [
     "MoERender",
     "PixelRouter",
     "RouterConfig",
+    "router_preset",
     "VolumeAwarePixelRouter",
     "VolumeRouter",
     "compute_responsibilities",
@@ -37,5 +38,7 @@ __all__ = [
     "lift",
     "load_moe",
     "prune",
+    "region_shares",
+    "winner_coherence",
     "train_router",
 ]

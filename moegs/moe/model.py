@@ -127,6 +127,34 @@ def load_moe(path: str | Path, experts: Sequence[Expert], scene: Scene | None = 
 
 
 @torch.no_grad()
+def winner_coherence(gates: Tensor, window: int = 5) -> float:
+    """Spatial coherence of the winner map of ``gates [K, H, W]``: the fraction of pixels whose winning
+    expert is also the most frequent winner of their ``window x window`` neighbourhood (ties count as
+    agreement; the neighbourhood is clipped at the image border). 1/K-ish for noise, near 1 for regions."""
+    k = gates.shape[0]
+    winner = gates.argmax(0)
+    onehot = torch.nn.functional.one_hot(winner, k).permute(2, 0, 1).float()[None]  # [1, K, H, W]
+    votes = torch.nn.functional.avg_pool2d(
+        onehot, window, stride=1, padding=window // 2, count_include_pad=False
+    )[0]  # [K, H, W]
+    own = votes.gather(0, winner[None])[0]
+    return float((own >= votes.max(0).values - 1e-6).float().mean())
+
+
+@torch.no_grad()
+def region_shares(gates: Tensor, mask: Tensor) -> dict[str, list[float]]:
+    """Share of the dynamic (``mask > 0.5``) and of the static pixels won by each expert (argmax of
+    ``gates [K, H, W]``): ``{"dynamic": [K], "static": [K]}``, each summing to 1 (empty region: zeros)."""
+    k = gates.shape[0]
+    winner = gates.argmax(0)
+    out = {}
+    for name, region in (("dynamic", mask > 0.5), ("static", mask <= 0.5)):
+        counts = torch.bincount(winner[region].flatten(), minlength=k).float()
+        out[name] = (counts / counts.sum().clamp_min(1)).tolist()
+    return out
+
+
+@torch.no_grad()
 def winner_shares(gates: Tensor, margin: float = 1e-3) -> list[float]:
     """Fraction of pixels where each expert's gate is the largest and above the uniform ``1/K`` by
     ``margin`` (pixels no expert covers get equal logits and count for nobody), ``K`` floats."""

@@ -72,6 +72,8 @@ class _Run:
         self.optimizers = Optimizers(expert.param_groups())
         white = bool((scene.background >= 1.0).all())
         self.strategy_state = self.strategy.initialize_state(scene.extent, white) if self.strategy else {}
+        if self.strategy:
+            self.strategy_state.update(expert.strategy_inputs(scene))
         groups = expert.view_groups(scene.train) or [0] * len(scene.train)
         self.sampler = ViewSampler(groups, config.batch_size, config.seed)
         self.step = 0
@@ -125,7 +127,7 @@ class _Run:
         picked = expert.select_views(step, self.scene.train, config.batch_size, self.sampler.generator)
         views = [self.scene.train[i] for i in (self.sampler.next() if picked is None else picked)]
         splat_opts = self.splat_optimizers() if strategy else {}
-        info: dict[str, Any] = {"renders": []}
+        info: dict[str, Any] = {"renders": [], "views": []}
         if strategy:
             strategy.step_pre_backward(expert.splats, splat_opts, self.strategy_state, step, info)
 
@@ -151,6 +153,8 @@ class _Run:
                 view_loss = view_loss + extra
             _check_finite(step, "loss of view", {view.key: view_loss.detach()}, self.last_good)
             loss = loss + view_loss
+            if strategy and strategy.needs_views:
+                info["views"].append({"camera": cam, "rgb": rgb.detach(), "target": target})
             if needs_stats:
                 info["renders"].append(
                     {
@@ -186,6 +190,7 @@ def train(
     progress: bool = True,
     stop_after: int | None = None,
     loss: ViewLoss | None = None,
+    recipe: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Train ``expert`` on ``scene`` and evaluate it on the test views.
 
@@ -202,6 +207,7 @@ def train(
             run to ``config.iterations``.
         loss: ``loss(view, rgb, target, lambda_dssim) -> 0-dim`` replacing the photometric loss of each
             view (distillation from MoE-GS); the expert's regularisers are still added.
+        recipe: how the config was made (``moegs.recipes.Recipe.provenance()``), saved in ``config.json``.
 
     Returns:
         ``{"expert", "scene", "stand_in", "completed", "step", "iterations", "num_gaussians",
@@ -230,6 +236,7 @@ def train(
                 "stand_in": scene.stand_in,
                 "config": to_dict(expert.config),
                 "train": to_dict(config),
+                "recipe": recipe,
             },
         )
 

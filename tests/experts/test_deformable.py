@@ -96,7 +96,7 @@ def test_learning_rates_follow_the_original(scene):
     assert group_lr(groups["deform"], 40_000) == pytest.approx(1.6e-6)  # final rate is not scaled
     assert group_lr(groups["means"], 0) == pytest.approx(8e-4)
     assert group_lr(groups["means"], 30_000) == pytest.approx(8e-6)
-    assert groups["scales"].lr == pytest.approx(1e-3)
+    assert groups["scales"].lr == pytest.approx(5e-3)  # scaling_lr 0.001 x 5 (scene/gaussian_model.py:124)
     assert {p for p in groups["deform"].params} == set(expert.fields.parameters())
 
 

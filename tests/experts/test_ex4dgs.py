@@ -153,7 +153,7 @@ def test_backtracking_of_one_gaussian_is_its_mean_pixel_error():
     covered = out.alpha > 1e-6
     expected = (rgb - target).abs().mean(-1)[covered].mean()
     assert s["err_count"][0] == 1 and s["err_sum"][0].item() == pytest.approx(expected.item(), rel=1e-3)
-    assert s["err_min_time"][0] == 0 and s["weight_max"][0] > 0
+    assert s["err_min_time"][0] == 0 and s["err_min"][0] < 1000  # seen with weight > 0.01: frame 0
 
 
 def test_dynamic_split_moves_every_keyframe_and_resets_widths():

@@ -43,10 +43,10 @@ def test_hexplane_uses_the_point_cloud_box_and_scene_time_resolution(scene):
     expert = _expert(scene)
     means = expert.splats["means"].detach()
     assert torch.equal(expert.fields.grid.aabb, torch.stack([means.max(0).values, means.min(0).values]))
-    assert expert.fields.grid.resolution == (32, 32, 32, 25)  # quick planes; unknown scene -> 25
-    from moegs.experts.fourdgs import TIME_RESOLUTION
+    assert expert.fields.grid.resolution == (32, 32, 32, 25)  # quick planes; D-NeRF default T 25
+    from moegs.recipes import config_for
 
-    assert TIME_RESOLUTION["dnerf:mutant"] == 75
+    assert config_for("fourdgs", "dnerf:mutant").config.time_resolution == 75  # arguments/dnerf/mutant.py:8
 
 
 def test_coarse_stage_is_static_then_fine_deforms_in_raw_space(scene):

@@ -49,7 +49,7 @@ def scene():
 
 
 def make(scene, **kw) -> MoDEExpert:
-    cfg = MoDEConfig.from_preset("quick")
+    cfg = MoDEConfig.from_preset("quick-paper")  # the paper's wording: one gate for every mixed attribute
     cfg = replace(cfg, experts=("ed3dgs", "fourdgs"), **kw)  # E-D3DGS base: deforms from step 1
     mode = MoDEExpert.from_scene(scene, cfg)
     mode.on_step(5_000)  # both members deforming, warm-up over

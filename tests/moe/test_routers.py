@@ -36,7 +36,7 @@ def experts(scene):
 
 
 def config(variant: str, **kw) -> RouterConfig:
-    return replace(RouterConfig.from_preset("quick"), variant=variant, **kw)
+    return replace(RouterConfig.from_preset("quick-paper"), variant=variant, **kw)
 
 
 @pytest.mark.parametrize("variant", ROUTERS)
@@ -166,7 +166,7 @@ def test_bad_config_and_presets_are_named():
         RouterConfig(variant="gate")
     with pytest.raises(ValueError, match="phi_kernel"):
         RouterConfig(phi_kernel=5)
-    with pytest.raises(ValueError, match="valid presets: quick, paper, code"):
+    with pytest.raises(ValueError, match="valid presets: code, paper, quick, quick-paper"):
         RouterConfig.from_preset("fast")
 
 

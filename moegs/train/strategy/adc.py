@@ -40,8 +40,9 @@ class ADCStrategy(Strategy):
     """Clone if max scale ≤ ``percent_dense · extent``, else split."""
     prune_opacity: float = 0.005
     """Prune opacity below this at every densification (``min_opacity`` in ``densify_and_prune``)."""
-    prune_world_scale: float = 0.1
-    """After the first reset interval prune max scale > ``prune_world_scale · extent``."""
+    prune_world_scale: float | None = 0.1
+    """After the first reset interval prune max scale > ``prune_world_scale · extent`` (None: never;
+    Grid4D's ``disable_ws_prune``)."""
     prune_screen_size: float | None = None
     """After the first reset interval prune Gaussians whose max screen radius since the last
     densification exceeds this many pixels. 3DGS passes 20, but its ``densification_postfix`` zeroes
@@ -55,6 +56,9 @@ class ADCStrategy(Strategy):
     """Opacity reset to ``min(opacity, reset_value)``."""
     reset_at_densify_from_if_white: bool = True
     """3DGS also resets at ``step == densify_from`` when the background is white."""
+    prune_after_reset_only: bool = False
+    """Prune nothing, not even low opacity, until ``step > reset_every`` (Grid4D calls ``prune_points``
+    inside ``if max_screen_size:``, ``scene/gaussian_model.py:374-380``)."""
 
     needs_render_stats = True
 
@@ -117,8 +121,11 @@ class ADCStrategy(Strategy):
 
         prune = torch.sigmoid(params["opacities"]) < self.prune_opacity
         if step > self.reset_every:
-            prune |= torch.exp(params["scales"]).max(dim=1).values > self.prune_world_scale * extent
+            if self.prune_world_scale is not None:
+                prune |= torch.exp(params["scales"]).max(dim=1).values > self.prune_world_scale * extent
             prune |= big_screen
+        elif self.prune_after_reset_only:
+            prune = torch.zeros_like(prune)
         self._remove_and_record(params, optimizers, state, clone, to_split, prune)
 
     def _remove_and_record(self, params, optimizers, state, clone, to_split, prune) -> None:

@@ -29,6 +29,9 @@ from typing import Any
 import torch
 from torch import nn
 
+NEVER = 10**9
+"""An iteration no run reaches (a schedule event that never happens, e.g. E-D3DGS's 6e6 reset interval)."""
+
 
 @dataclass
 class Strategy:
@@ -36,6 +39,8 @@ class Strategy:
 
     needs_render_stats = False
     """Whether the loop must render with ``return_stats=True`` and keep ``means2d`` gradients."""
+    needs_views = False
+    """Whether ``info["views"]`` must hold each view's ``camera``, ``rgb`` (detached) and ``target``."""
 
     def initialize_state(self, scene_scale: float, white_background: bool = False) -> dict[str, Any]:
         """A fresh state; ``scene_scale`` is the scene extent (3DGS ``cameras_extent``)."""

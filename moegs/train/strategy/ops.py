@@ -62,6 +62,19 @@ def _append_zero_moments(new_rows: int) -> Rows:
 
 
 @torch.no_grad()
+def append(params: nn.ParameterDict, optimizers: dict, rows: dict[str, Tensor]) -> None:
+    """Append new Gaussians: ``rows[key] [M, ...]`` for every key of ``params``; new moments are zero."""
+    if set(rows) != set(params.keys()):
+        raise KeyError(f"append needs rows for exactly {sorted(params.keys())}, got {sorted(rows)}")
+    m = {v.shape[0] for v in rows.values()}
+    if len(m) != 1:
+        raise ValueError(f"append: rows of different lengths {sorted(m)}")
+    update_params(
+        params, optimizers, lambda k, v: torch.cat([v, rows[k].to(v)]), _append_zero_moments(m.pop())
+    )
+
+
+@torch.no_grad()
 def duplicate(params: nn.ParameterDict, optimizers: dict, mask: Tensor) -> None:
     """Append a copy of the Gaussians selected by ``mask [N]`` (3DGS clone); new moments are zero."""
     index = mask.nonzero(as_tuple=True)[0]
