@@ -102,13 +102,15 @@ def write_outputs(plan, workspace, selected: list[str], out: Path, run: dict | N
     from bench.latex import write_index, write_table
     from bench.plots import plot_spec
     from bench.report import spec_report, write_report
+    from bench.signals import expert_rows, routing_rows, seed_noise
     from bench.values import SpecValues
 
     tables_dir, reports_dir = out / "tables", out / "reports"
     reports, written = [], []
     header = f"preset {plan.preset.name}, generated {time.strftime('%Y-%m-%d %H:%M')}"
+    noise = seed_noise(plan, workspace)
     for sp in plan.specs:
-        values = SpecValues(sp, workspace)
+        values = SpecValues(sp, workspace, noise["metrics"])
         latex, figures = None, []
         if sp.spec.id in selected:
             if not sp.spec.figure:
@@ -125,7 +127,12 @@ def write_outputs(plan, workspace, selected: list[str], out: Path, run: dict | N
     all_tex = sorted(p for p in tables_dir.glob("*.tex") if p.name != "all.tex")
     if all_tex:
         write_index(all_tex, tables_dir)
-    paths = write_report(reports, plan.preset, reports_dir, run)
+    signals = {
+        "noise": noise,
+        "experts": expert_rows(plan, workspace),
+        "routing": routing_rows(plan, workspace),
+    }
+    paths = write_report(reports, plan.preset, reports_dir, run, signals)
     return {"reports": reports, "paths": paths, "tables": written}
 
 
@@ -184,14 +191,13 @@ def _print_summary(reports, selected, paths, elapsed: float) -> None:
     from rich.table import Table
 
     table = Table(title=f"moegs bench ({elapsed:.0f} s)", show_lines=False)
-    for col in ("id", "status", "claims held/failed/n.a."):
+    for col in ("id", "status", "claims held/failed/within noise/n.a."):
         table.add_column(col, overflow="fold")
     for rep in reports:
         if rep.id not in selected:
             continue
-        held = sum(c["ours"] == "held" for c in rep.claims)
-        failed = sum(c["ours"] == "failed" for c in rep.claims)
-        table.add_row(rep.id, rep.status, f"{held}/{failed}/{len(rep.claims) - held - failed}")
+        counts = [sum(c["ours"] == s for c in rep.claims) for s in ("held", "failed", "within noise")]
+        table.add_row(rep.id, rep.status, "/".join(map(str, [*counts, len(rep.claims) - sum(counts)])))
     console = Console(stderr=True)
     console.print(table)
     console.print(f"report: {paths['md']}  (html: {paths['html']})")

@@ -5,6 +5,10 @@ Every check takes a *values view* ``v`` (``bench.values.ValuesView``: ``get(row,
 Column selectors: ``"@mean"`` (the dataset average: the paper's ``Average`` column, our mean over
 computed scenes), ``"@scenes"`` (every scene column that has values), or a list of printed columns.
 ``better`` respects each metric's direction (LPIPS, MDC: lower is better).
+
+Noise: a view may carry ``noise`` (metric name -> the seed-to-seed spread measured in this run). A
+comparison whose margin is within it decides nothing: the claim is "within noise" unless another
+comparison fails beyond the noise. The paper's own numbers carry no noise.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from typing import Any, Protocol
 
 from bench.spec import Claim, metric
 
-HELD, FAILED, NA = "held", "failed", "n/a"
+HELD, FAILED, NA, NOISE = "held", "failed", "n/a", "within noise"
 
 
 class ValuesView(Protocol):
@@ -44,6 +48,25 @@ def _is_better(x: float, y: float, metric_name: str, strict: bool, margin: float
     return x - y > margin if strict else x - y >= -margin
 
 
+def noise_of(v: ValuesView, metric_name: str) -> float:
+    """The view's seed-to-seed spread of ``metric_name`` (0 when it has none)."""
+    return float(getattr(v, "noise", {}).get(metric_name, 0.0))
+
+
+def _compare(x: float, y: float, metric_name: str, strict: bool, margin: float, noise: float) -> str:
+    """HELD / FAILED, or NOISE when ``x - y`` is within ``noise`` of the decision boundary."""
+    gain = (x - y) if metric(metric_name).higher_is_better else (y - x)
+    boundary = margin if strict else -margin
+    if noise > 0 and abs(gain - boundary) <= noise:
+        return NOISE
+    return HELD if (gain > boundary if strict else gain >= boundary) else FAILED
+
+
+def _verdict(statuses: list[str]) -> str:
+    """FAILED if any comparison failed, else NOISE if any is within noise, else HELD."""
+    return FAILED if FAILED in statuses else NOISE if NOISE in statuses else HELD
+
+
 def better(
     v: ValuesView,
     a: str,
@@ -55,7 +78,8 @@ def better(
 ) -> ClaimResult:
     """Row ``a`` is better than row ``b`` (or every row of a list) on every selected column."""
     others = [b] if isinstance(b, str) else list(b)
-    checked, lost = [], []
+    noise = noise_of(v, metric)
+    checked, statuses = [], []
     for col in v.columns(columns):
         x = v.get(a, col, metric)
         for o in others:
@@ -63,12 +87,16 @@ def better(
             if x is None or y is None:
                 continue
             checked.append(f"{col}: {_fmt(x)} vs {o} {_fmt(y)}")
-            if not _is_better(x, y, metric, strict, margin):
-                lost.append(checked[-1])
+            statuses.append(_compare(x, y, metric, strict, margin, noise))
     if not checked:
         return ClaimResult(NA, f"no column where {a} and {others} both have {metric}")
-    if lost:
+    verdict = _verdict(statuses)
+    if verdict == FAILED:
+        lost = [c for c, s in zip(checked, statuses, strict=True) if s == FAILED]
         return ClaimResult(FAILED, f"{a} not better on " + "; ".join(lost))
+    if verdict == NOISE:
+        close = [c for c, s in zip(checked, statuses, strict=True) if s == NOISE]
+        return ClaimResult(NOISE, f"margin within the seed spread {noise:.3g} on " + "; ".join(close))
     return ClaimResult(
         HELD,
         f"{a} better on {len(checked)} comparison(s): "
@@ -100,25 +128,32 @@ def order(
     parts = [better(v, rows[i], rows[i + 1], metric, columns, strict) for i in range(len(rows) - 1)]
     if any(p.status == NA for p in parts):
         return ClaimResult(NA, "; ".join(p.detail for p in parts if p.status == NA))
-    status = HELD if all(p.held for p in parts) else FAILED
-    return ClaimResult(status, " | ".join(p.detail for p in parts))
+    return ClaimResult(_verdict([p.status for p in parts]), " | ".join(p.detail for p in parts))
 
 
 def monotone(
     v: ValuesView, rows: Sequence[str], columns: Sequence[str], metric: str = "PSNR", tolerance: float = 0.0
 ) -> ClaimResult:
     """Along ``columns`` (in order) each row's value never gets better by more than ``tolerance``."""
-    bad, seen = [], 0
+    noise = noise_of(v, metric)
+    bad, close, seen = [], [], 0
     for row in rows:
         vals = [(c, v.get(row, c, metric)) for c in columns]
         vals = [(c, x) for c, x in vals if x is not None]
         for (c0, x0), (c1, x1) in zip(vals, vals[1:], strict=False):
             seen += 1
-            if _is_better(x1, x0, metric, strict=True, margin=tolerance):
-                bad.append(f"{row}: {c1} {_fmt(x1)} > {c0} {_fmt(x0)}")
+            step = f"{row}: {c1} {_fmt(x1)} > {c0} {_fmt(x0)}"
+            if _is_better(x1, x0, metric, strict=True, margin=tolerance + noise):
+                bad.append(step)
+            elif _is_better(x1, x0, metric, strict=True, margin=tolerance):
+                close.append(step)
     if not seen:
         return ClaimResult(NA, f"fewer than two of {list(columns)} computed")
-    return ClaimResult(FAILED if bad else HELD, "; ".join(bad) or f"{seen} step(s) non-increasing")
+    if bad:
+        return ClaimResult(FAILED, "; ".join(bad))
+    if close:
+        return ClaimResult(NOISE, f"within the seed spread {noise:.3g}: " + "; ".join(close))
+    return ClaimResult(HELD, f"{seen} step(s) non-increasing")
 
 
 def within(
@@ -130,17 +165,24 @@ def within(
     columns: str | Sequence[str] = "@mean",
 ) -> ClaimResult:
     """``|a - b| <= tolerance`` on every selected column (e.g. pruning keeps PSNR)."""
-    checked, bad = 0, []
+    noise = noise_of(v, metric)
+    checked, bad, close = 0, [], []
     for col in v.columns(columns):
         x, y = v.get(a, col, metric), v.get(b, col, metric)
         if x is None or y is None:
             continue
         checked += 1
-        if abs(x - y) > tolerance:
+        if abs(x - y) > tolerance + noise:
             bad.append(f"{col}: |{_fmt(x)} - {_fmt(y)}| > {tolerance}")
+        elif abs(x - y) > tolerance:
+            close.append(f"{col}: |{_fmt(x)} - {_fmt(y)}| > {tolerance} by less than the seed spread")
     if not checked:
         return ClaimResult(NA, f"{a} / {b} have no common {metric}")
-    return ClaimResult(FAILED if bad else HELD, "; ".join(bad) or f"{a} within {tolerance} of {b}")
+    if bad:
+        return ClaimResult(FAILED, "; ".join(bad))
+    if close:
+        return ClaimResult(NOISE, "; ".join(close))
+    return ClaimResult(HELD, f"{a} within {tolerance} of {b}")
 
 
 def exceeds(
@@ -154,9 +196,10 @@ def exceeds(
     pairs = [(o, y) for o, y in pairs if y is not None]
     if not pairs:
         return ClaimResult(NA, f"none of {list(others)} has {column_b}")
-    bad = [f"{o} {column_b} {_fmt(y)}" for o, y in pairs if not _is_better(x, y, metric, True, 0.0)]
+    noise = noise_of(v, metric)
+    statuses = [_compare(x, y, metric, True, 0.0, noise) for _, y in pairs]
     detail = f"{a} {column_a} {_fmt(x)} vs " + ", ".join(f"{o} {_fmt(y)}" for o, y in pairs)
-    return ClaimResult(FAILED if bad else HELD, detail)
+    return ClaimResult(_verdict(statuses), detail)
 
 
 def spread(

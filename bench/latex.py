@@ -8,6 +8,7 @@ host document can restyle them:
 * ``\rankfirst`` / ``\ranksecond`` / ``\rankthird``: our best / second / third value of a column;
 * ``\paperref{p}``: the paper's value when ours is not comparable (stand-in data);
 * ``\paperdelta{p}{d}``: the paper's value and Δ = ours − paper (ours on the paper's real scene);
+* ``\dynregion{v}``: beside our PSNR, the PSNR of the dynamic region of the same cell;
 * ``\oursmissing``, ``\oursni``, ``\oursfail``, ``\ourspending``, ``\oursext``: no value of ours.
 
 Numbers come only from result JSONs and ``tables/paper``.
@@ -27,6 +28,7 @@ MACROS = r"""\providecommand{\rankfirst}[1]{\textbf{#1}}
 \providecommand{\rankthird}[1]{#1}
 \providecommand{\paperref}[1]{{\scriptsize\,(#1)}}
 \providecommand{\paperdelta}[2]{{\scriptsize\,(#1, $#2$)}}
+\providecommand{\dynregion}[1]{{\scriptsize\,[#1]}}
 \providecommand{\oursmissing}{--}
 \providecommand{\oursni}{n/i}
 \providecommand{\oursfail}{fail}
@@ -133,12 +135,18 @@ def cell_tex(values: SpecValues, row: str, column: str, metric_name: str, ranks:
         rank = ranks.get(row)
         if rank is not None and rank < 3:
             ours = ("\\rankfirst{", "\\ranksecond{", "\\rankthird{")[rank] + ours + "}"
+        dynamic = values.get(row, column, DYNAMIC) if metric_name == "PSNR" else None
+        if dynamic is not None:
+            ours += f"\\dynregion{{{fmt(dynamic, DYNAMIC)}}}"
     if printed is None or (column == STAND_IN and cell.value is None):
         return ours  # the stand-in column shows the paper's Average only beside a value of ours
     if cell.value is not None and cell.comparable:
         paper = values.paper.get(row, paper_col, metric_name)
         return f"{ours}\\paperdelta{{{tex(printed)}}}{{{_fmt_delta(cell.value - paper, metric_name)}}}"
     return f"{ours}\\paperref{{{tex(printed)}}}"
+
+
+DYNAMIC = "PSNR dynamic"
 
 
 def _column_header(column: str) -> str:
@@ -203,6 +211,10 @@ def caption(values: SpecValues, preset: BenchPreset) -> str:
                 "s: synthetic stand-in scene (numbers not comparable with the paper; the paper value "
                 "shown beside it is its Average)."
             )
+    parts.append(
+        "[x]: PSNR of the dynamic region (stand-ins: ground-truth dynamic mask; D-NeRF: object alpha; "
+        "Panoptic: foreground masks)."
+    )
     missing = values.missing_pieces()
     if missing:
         parts.append("n/i: not implemented yet in the library (missing: " + ", ".join(missing) + ").")

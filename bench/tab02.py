@@ -56,6 +56,7 @@ SPEC = Spec(
             "Sec. VI-A, Quantitative",
         ),
     ),
+    motion=True,
     notes="The stored MoDE code has only 4DGaussians-based combinations; the others follow the paper.",
 )
 

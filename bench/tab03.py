@@ -60,6 +60,7 @@ SPEC = Spec(
             "Sec. VI-B, Quantitative",
         ),
     ),
+    motion=True,
     notes="STG† (150-frame split) is one STG model over the preset's frame window. N=2: {Ex4DGS, STG}, "
     "N=3: + E-D3DGS, N=4: + 4DGaussians.",
 )

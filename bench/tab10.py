@@ -33,6 +33,7 @@ SPEC = Spec(
             "Sec. VI-B (iv)",
         ),
     ),
+    motion=True,
     notes="3DGS-MCMC is a static expert (one model per frame in the library's 'mcmc' expert).",
 )
 

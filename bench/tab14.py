@@ -25,6 +25,7 @@ SPEC = Spec(
             "Appendix",
         ),
     ),
+    motion=True,
     notes="The paper does not print the two experts of MoE-GS (N=2); {4DGaussians, E-D3DGS} (the listed "
     "baselines) is assumed.",
 )

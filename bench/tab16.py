@@ -25,6 +25,7 @@ SPEC = Spec(
             "Appendix",
         ),
     ),
+    motion=True,
     notes="The metric is not printed; PSNR assumed. Basketball is the staged real scene.",
 )
 

@@ -32,6 +32,7 @@ SPEC = Spec(
             "Table XVII",
         ),
     ),
+    motion=True,
     notes="The metric is not printed; PSNR assumed. Mutant is the staged real scene.",
 )
 

@@ -101,8 +101,11 @@ def _combine(slots: list[Slot], sr: SlotResults, metric_name: str, how: str = "m
 class SpecValues:
     """Our values of one spec (a ``ValuesView``) plus the paper's (``.paper``)."""
 
-    def __init__(self, plan: SpecPlan, workspace: Workspace) -> None:
+    def __init__(self, plan: SpecPlan, workspace: Workspace, noise: dict[str, float] | None = None) -> None:
         self.plan = plan
+        self.noise = dict(noise or {})
+        """Seed-to-seed spread per metric name (``bench.signals.seed_noise``): claims within it are
+        "within noise"."""
         self.spec = plan.spec
         self.results = SlotResults(plan, workspace)
         self.paper_table: PaperTable | None = load_paper_numbers(self.spec.paper) if self.spec.paper else None

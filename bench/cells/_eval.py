@@ -1,10 +1,10 @@
 """Score any renderer on a scene's test views: image metrics, region metrics, speed, model size.
 
-``render(camera) -> image [H, W, 3]`` is called under ``torch.no_grad``. Metrics use the preset's
-``moegs.metrics`` profile; region metrics use the views' masks (synthetic stand-ins: ground-truth
-dynamic mask; Panoptic: foreground segmentation) as the dynamic region and their complement as the
-static region. Speed follows ``moegs.metrics.speed.measure_render`` (render call only, warm-up,
-median per view).
+``render(camera) -> image [H, W, 3]`` is called under ``torch.no_grad``. Scores come from the library's
+one evaluation (``moegs.train.evaluate.evaluate_renderer``) with the preset's metric profile: full image,
+dynamic region and static region (synthetic stand-ins: ground-truth dynamic mask; D-NeRF: object alpha;
+Panoptic: foreground segmentation). Speed follows ``moegs.metrics.speed.measure_render`` (render call
+only, warm-up, median per view).
 """
 
 from __future__ import annotations
@@ -13,8 +13,6 @@ from collections.abc import Callable
 from typing import Any
 
 from bench.presets import BenchPreset
-
-_VIEW_KEYS = ("psnr", "ssim", "lpips", "psnr_dynamic", "ssim_dynamic", "psnr_static", "ssim_static")
 
 
 def module_megabytes(*modules: Any) -> float:
@@ -26,50 +24,28 @@ def module_megabytes(*modules: Any) -> float:
     return total / 2**20
 
 
-def _mean(rows: list[dict[str, Any]], key: str) -> float | None:
-    vals = [r[key] for r in rows if r.get(key) is not None]
-    return sum(vals) / len(vals) if vals else None
-
-
 def evaluate_renderer(
     render: Callable[[Any], Any], scene: Any, preset: BenchPreset, *, speed: bool = True, regions: bool = True
 ) -> dict[str, Any]:
     """``{"metrics", "per_view", "details"}`` of ``render`` on ``scene``'s test views under ``preset``."""
     import torch
 
-    from moegs.metrics import evaluate_images, measure_render
+    from moegs.metrics import measure_render
     from moegs.train.evaluate import eval_views
+    from moegs.train.evaluate import evaluate_renderer as score_views
 
     views = eval_views(scene.test, preset.test_views)
     if not views:
         raise ValueError(f"scene {scene.name} has no test views")
-    profile, per_view = None, []
-    lpips_unavailable = None
-    with torch.no_grad():
-        for view in views:
-            image, target = render(view.camera), view.image()
-            scores = evaluate_images(image, target, preset.metric_profile)
-            profile, lpips_unavailable = scores["profile"], scores["lpips_unavailable"]
-            row = {
-                "key": view.key,
-                "time": float(view.camera.time),
-                **{k: scores[k] for k in ("psnr", "ssim", "lpips")},
-            }
-            mask = view.mask() if regions else None
-            if mask is not None:
-                dynamic = (mask > 0.5).float()
-                for name, region in (("dynamic", dynamic), ("static", 1.0 - dynamic)):
-                    if float(region.sum()) > 0:
-                        r = evaluate_images(image, target, preset.metric_profile, mask=region)
-                        row[f"psnr_{name}"], row[f"ssim_{name}"] = r["psnr"], r["ssim"]
-            per_view.append(row)
-    metrics = {k: _mean(per_view, k) for k in _VIEW_KEYS}
-    metrics = {k: v for k, v in metrics.items() if v is not None or k in ("psnr", "ssim", "lpips")}
+    scores = score_views(render, views, preset.metric_profile, regions=regions)
+    per_view = scores.pop("per_view")
+    profile = scores.pop("profile")
     details: dict[str, Any] = {
-        "num_views": len(views),
-        "lpips_unavailable": lpips_unavailable,
-        "region_masks": any("psnr_dynamic" in r for r in per_view),
+        "num_views": scores.pop("num_views"),
+        "lpips_unavailable": scores.pop("lpips_unavailable"),
+        "region_masks": scores.pop("region_masks"),
     }
+    metrics = {k: v for k, v in scores.items() if v is not None or k in ("psnr", "ssim", "lpips")}
     if speed:
         cams = [v.camera for v in views[: max(1, preset.speed_views)]]
 

@@ -25,6 +25,8 @@ from moegs.data.scene import PointCloud, View
 
 __all__ = [
     "TriangulationError",
+    "backproject",
+    "voxel_downsample",
     "initial_scales",
     "knn_mean_distance",
     "point_colors",
@@ -316,6 +318,35 @@ def triangulate(
 
 
 # -- random fallbacks --------------------------------------------------------------------------------
+def backproject(depth: Tensor, camera: Camera, image: Tensor) -> tuple[Tensor, Tensor]:
+    """World points and colours of the pixels of ``depth [H, W]`` (camera z, 0 = no surface) seen by
+    ``camera`` with colours ``image [H, W, 3]``: ``([P, 3], [P, 3])``, pixel centres."""
+    h, w = depth.shape
+    rows, cols = torch.meshgrid(
+        torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij"
+    )
+    hit = depth > 0
+    z = depth[hit].to(torch.float64)
+    k = camera.K.to(torch.float64)
+    x = (cols[hit] + 0.5 - k[0, 2]) / k[0, 0] * z
+    y = (rows[hit] + 0.5 - k[1, 2]) / k[1, 1] * z
+    c2w = torch.linalg.inv(camera.world_to_camera.to(torch.float64))
+    xyz = torch.stack([x, y, z], -1) @ c2w[:3, :3].T + c2w[:3, 3]
+    return xyz.to(torch.float32), image[hit].to(torch.float32)
+
+
+def voxel_downsample(xyz: Tensor, rgb: Tensor, voxel: float) -> tuple[Tensor, Tensor]:
+    """One point per occupied ``voxel``-sized cell: the mean position and colour of its points
+    (Open3D ``voxel_down_sample``, which 4DGaussians' ``scripts/downsample_point.py`` uses)."""
+    cells = torch.floor(xyz.to(torch.float64) / voxel).to(torch.int64)
+    _, inverse, counts = torch.unique(cells, dim=0, return_inverse=True, return_counts=True)
+    sums = torch.zeros(len(counts), 6, dtype=torch.float64).index_add_(
+        0, inverse, torch.cat([xyz, rgb], 1).double()
+    )
+    means = (sums / counts[:, None]).to(torch.float32)
+    return means[:, :3], means[:, 3:]
+
+
 def random_in_box(bbox: Tensor, n: int, seed: int = 0) -> Tensor:
     """``n`` points uniform in the axis-aligned box ``bbox [2, 3]`` (min, max) -> ``[n, 3]`` float32."""
     bbox = torch.as_tensor(bbox, dtype=torch.float32)

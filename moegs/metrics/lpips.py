@@ -180,10 +180,16 @@ class _AlexLPIPS(nn.Module):
             feats.append(h / (torch.linalg.vector_norm(h, dim=1, keepdim=True) + 1e-10))
         return feats
 
-    def forward(self, x: Tensor, y: Tensor) -> Tensor:
+    def forward(self, x: Tensor, y: Tensor, mask: Tensor | None = None) -> Tensor:
+        """``[B]`` distances; with ``mask [B, 1, H, W]``, the mask-weighted mean of the spatial map."""
         total = x.new_zeros(x.shape[0])
         for fx, fy, lin in zip(self._features(x), self._features(y), self.lins, strict=True):
-            total = total + lin((fx - fy).square()).mean(dim=(1, 2, 3))
+            layer = lin((fx - fy).square())  # [B, 1, h, w]
+            if mask is None:
+                total = total + layer.mean(dim=(1, 2, 3))
+            else:  # lpips spatial=True: each layer's map upsampled bilinearly to the image size
+                up = F.interpolate(layer, size=x.shape[-2:], mode="bilinear", align_corners=False)
+                total = total + (up * mask).sum(dim=(1, 2, 3)) / mask.sum(dim=(1, 2, 3)).clamp_min(1e-12)
         return total
 
 
@@ -192,7 +198,9 @@ def _network(folder: str, device: torch.device, dtype: torch.dtype) -> _AlexLPIP
     return _AlexLPIPS(folder).to(device=device, dtype=dtype)
 
 
-def lpips(pred: Tensor, target: Tensor, net: str = "alex", scaling: str = "pm1") -> Tensor:
+def lpips(
+    pred: Tensor, target: Tensor, net: str = "alex", scaling: str = "pm1", mask: Tensor | None = None
+) -> Tensor:
     """LPIPS distance, one value per image (lower is more similar; 0 for identical images).
 
     Differentiable with respect to both inputs (the network is frozen), so usable as a loss.
@@ -202,6 +210,9 @@ def lpips(pred: Tensor, target: Tensor, net: str = "alex", scaling: str = "pm1")
         target: same shape.
         net: backbone; only "alex" is staged (``LPIPS_NETS``).
         scaling: "pm1" (default, correct) or "legacy01" (the 3DGS-lineage trap), see ``LPIPS_SCALINGS``.
+        mask: optional region ``[H, W]`` (``[B, H, W]`` for a batch) of weights in [0, 1]: the result is
+            the mask-weighted mean of the spatial LPIPS map (``lpips.LPIPS(spatial=True)``: every layer's
+            distance map upsampled bilinearly to the image size, then summed over layers).
 
     Returns:
         0-dim tensor for one image, ``[B]`` for a batch.
@@ -223,7 +234,14 @@ def lpips(pred: Tensor, target: Tensor, net: str = "alex", scaling: str = "pm1")
     x, y = to_bchw(x), to_bchw(y)
     if scaling == "pm1":
         x, y = 2.0 * x - 1.0, 2.0 * y - 1.0
-    return unbatch(network(x, y), batched)
+    weights = None
+    if mask is not None:
+        weights = (
+            mask.to(x.dtype).reshape(x.shape[0], 1, h, w) if mask.numel() == x.shape[0] * h * w else None
+        )
+        if weights is None:
+            raise ValueError(f"lpips: mask must have {h}x{w} values per image, got shape {list(mask.shape)}")
+    return unbatch(network(x, y, weights), batched)
 
 
 class LPIPS(nn.Module):

@@ -98,8 +98,7 @@ def evaluate_images(
         target: ground truth, same shape.
         profile: preset name or ``MetricProfile``.
         mask: optional ROI ``[H, W]``/``[H, W, 1]``/``[H, W, C]`` (leading ``B`` when batched): PSNR is
-            mask-normalised, SSIM the mask-weighted mean of its map; LPIPS has no masked form and is
-            then ``None`` with a reason.
+            mask-normalised, SSIM and LPIPS the mask-weighted means of their spatial maps.
 
     Returns:
         ``{"psnr", "ssim", "lpips", "lpips_unavailable", "masked", "profile"}``; values are floats for
@@ -123,12 +122,10 @@ def evaluate_images(
         "lpips_unavailable": None,
         "masked": mask is not None,
     }
-    if mask is not None:
-        out["lpips_unavailable"] = "LPIPS has no masked form here; crop pred and target to the ROI instead"
-    else:
-        try:
-            out["lpips"] = plain(lpips(pred, target, prof.lpips_net, prof.lpips_scaling))
-        except LPIPSUnavailable as exc:
-            out["lpips_unavailable"] = str(exc)
+    roi = None if mask is None else (mask if mask.ndim == pred.ndim - 1 else mask[..., 0])
+    try:
+        out["lpips"] = plain(lpips(pred, target, prof.lpips_net, prof.lpips_scaling, mask=roi))
+    except LPIPSUnavailable as exc:
+        out["lpips_unavailable"] = str(exc)
     out["profile"] = prof.to_dict()
     return out

@@ -27,10 +27,9 @@ from tqdm.auto import tqdm
 from moegs.data.scene import Scene, View
 from moegs.experts.base import Expert, ParamGroup
 from moegs.io import save_checkpoint, to_dict, write_json
-from moegs.metrics import evaluate_images
 from moegs.moe.config import RouterConfig
 from moegs.moe.model import ROUTER_CHECKPOINT, MoEGS, _check_experts, read_router, winner_shares
-from moegs.train.evaluate import eval_views
+from moegs.train.evaluate import eval_views, mean_scores, score_image
 from moegs.train.losses import photometric
 from moegs.train.optim import Optimizers
 from moegs.train.sampler import ViewSampler
@@ -55,39 +54,33 @@ def router_param_groups(model: MoEGS) -> list[ParamGroup]:
 
 @torch.no_grad()
 def evaluate_moe(model: MoEGS, views: Sequence[View], background, profile: str = "moegs") -> dict[str, Any]:
-    """Metrics of the blend and of every expert on ``views`` (one render per view), and the share of
-    pixels each expert wins.
+    """Metrics of the blend and of every expert on ``views`` (one render per view; full image and the
+    dynamic / static regions, ``moegs.train.evaluate``), and the share of pixels each expert wins.
 
     Returns:
-        ``{"psnr", "ssim", "lpips", "lpips_unavailable", "num_views", "per_view", "experts": [{"name",
-        "psnr", "ssim", "lpips"}], "winner_share": [K floats]}``.
+        ``{**KEYS, "lpips_unavailable", "num_views", "per_view", "experts": [{"name", **KEYS}],
+        "winner_share": [K floats]}``.
     """
     if not views:
         raise ValueError("evaluate_moe needs at least one view")
-    keys = ("psnr", "ssim", "lpips")
     per_view, per_expert, shares, unavailable = [], [[] for _ in model.experts], [], None
     for view in views:
         out = model.render(view.camera, background)
-        target = view.image()
-        scores = evaluate_images(out.image, target, profile)
-        unavailable = scores["lpips_unavailable"]
-        per_view.append({"key": view.key, "time": view.camera.time, **{k: scores[k] for k in keys}})
+        target, mask = view.image(), view.mask()
+        scores = score_image(out.image, target, mask, profile)
+        unavailable = scores.pop("lpips_unavailable")
+        scores.pop("profile")
+        per_view.append({"key": view.key, "time": view.camera.time, **scores})
         for k, image in enumerate(out.expert_images):
-            per_expert[k].append(evaluate_images(image, target, profile))
+            per_expert[k].append(score_image(image, target, mask, profile))
         shares.append(winner_shares(out.gates))
-
-    def mean(rows: list[dict], key: str) -> float | None:
-        values = [r[key] for r in rows]
-        return None if any(v is None for v in values) else sum(values) / len(values)
-
     return {
-        **{k: mean(per_view, k) for k in keys},
+        **mean_scores(per_view),
         "lpips_unavailable": unavailable,
         "num_views": len(views),
         "per_view": per_view,
         "experts": [
-            {"name": e.name, **{k: mean(rows, k) for k in keys}}
-            for e, rows in zip(model.experts, per_expert, strict=True)
+            {"name": e.name, **mean_scores(rows)} for e, rows in zip(model.experts, per_expert, strict=True)
         ],
         "winner_share": torch.tensor(shares).mean(0).tolist(),
     }

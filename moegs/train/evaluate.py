@@ -1,6 +1,16 @@
-"""Render an expert and score it on held-out views."""
+"""Score renders on held-out views: the one evaluation every command, the MoE-GS router and the bench use.
+
+Every view is scored on the full image and, when it has a mask (``View.mask()``: a stand-in's ground-truth
+dynamic mask, D-NeRF's object alpha, Panoptic's foreground segmentation), on its **dynamic** region
+(mask > 0.5) and its **static** complement: PSNR over the region's pixels, SSIM and LPIPS as the
+region-weighted means of their spatial maps. Keys: ``psnr``, ``ssim``, ``lpips`` and
+``<metric>_dynamic`` / ``<metric>_static``.
+"""
 
 from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -9,6 +19,11 @@ from moegs.camera import Camera
 from moegs.data.scene import View
 from moegs.experts.base import Expert
 from moegs.metrics import evaluate_images
+
+METRICS = ("psnr", "ssim", "lpips")
+REGIONS = ("dynamic", "static")
+KEYS = METRICS + tuple(f"{m}_{r}" for r in REGIONS for m in METRICS)
+"""Every score of a view: the full image, then each region."""
 
 
 def render_view(
@@ -33,40 +48,69 @@ def eval_views(views: list[View], max_views: int | None) -> list[View]:
 
 
 @torch.no_grad()
+def score_image(image: Tensor, target: Tensor, mask: Tensor | None, profile: str = "moegs") -> dict[str, Any]:
+    """``KEYS`` of one render ``[H, W, 3]`` (region keys only with a ``mask [H, W]``; a region without
+    pixels scores None), plus ``lpips_unavailable`` and ``profile``."""
+    scores = evaluate_images(image, target, profile)
+    out: dict[str, Any] = {k: scores[k] for k in METRICS}
+    out.update(lpips_unavailable=scores["lpips_unavailable"], profile=scores["profile"])
+    if mask is not None:
+        dynamic = (mask > 0.5).to(image.dtype)
+        for name, region in zip(REGIONS, (dynamic, 1.0 - dynamic), strict=True):
+            r = evaluate_images(image, target, profile, mask=region) if bool(region.any()) else {}
+            out.update({f"{m}_{name}": r.get(m) for m in METRICS})
+    return out
+
+
+def mean_scores(rows: Sequence[dict[str, Any]]) -> dict[str, float | None]:
+    """Mean of each ``KEYS`` entry over the rows that have it (None when none has it, or when some view
+    has no full-image value, e.g. LPIPS without weights)."""
+    out: dict[str, float | None] = {}
+    for key in KEYS:
+        values = [r.get(key) for r in rows]
+        if key in METRICS and any(v is None for v in values):
+            out[key] = None
+            continue
+        present = [v for v in values if v is not None]
+        out[key] = sum(present) / len(present) if present else None
+    return out
+
+
+@torch.no_grad()
+def evaluate_renderer(
+    render: Callable[[Camera], Tensor], views: Sequence[View], profile: str = "moegs", regions: bool = True
+) -> dict[str, Any]:
+    """Mean ``KEYS`` of ``render(camera) -> [H, W, 3]`` over ``views`` and the per-view values.
+
+    Returns:
+        ``{**KEYS, "lpips_unavailable", "profile", "num_views", "region_masks", "per_view": [{"key",
+        "time", **KEYS}]}``; ``region_masks`` says whether any view had a mask.
+    """
+    if not views:
+        raise ValueError("evaluate_renderer needs at least one view")
+    per_view, unavailable, prof = [], None, None
+    for view in views:
+        scores = score_image(render(view.camera), view.image(), view.mask() if regions else None, profile)
+        unavailable, prof = scores.pop("lpips_unavailable"), scores.pop("profile")
+        per_view.append({"key": view.key, "time": float(view.camera.time), **scores})
+    return {
+        **mean_scores(per_view),
+        "lpips_unavailable": unavailable,
+        "profile": prof,
+        "num_views": len(views),
+        "region_masks": any("psnr_dynamic" in r for r in per_view),
+        "per_view": per_view,
+    }
+
+
 def evaluate(
     expert: Expert,
     views: list[View],
     background: Tensor | None,
     profile: str = "moegs",
     backend: str = "auto",
-) -> dict:
-    """Mean PSNR / SSIM / LPIPS over ``views`` plus the per-view values.
-
-    Returns:
-        ``{"psnr", "ssim", "lpips", "lpips_unavailable", "profile", "num_views", "per_view": [{"key",
-        "time", "psnr", "ssim", "lpips"}]}``; ``lpips`` is None when the weights are unavailable.
-    """
-    if not views:
-        raise ValueError("evaluate() needs at least one view")
-    per_view, unavailable, prof = [], None, None
-    for view in views:
-        rgb, _, _ = render_view(expert, view.camera, background, backend)
-        scores = evaluate_images(rgb, view.image(), profile)
-        unavailable, prof = scores["lpips_unavailable"], scores["profile"]
-        per_view.append(
-            {"key": view.key, "time": view.camera.time, **{k: scores[k] for k in ("psnr", "ssim", "lpips")}}
-        )
-
-    def mean(key: str) -> float | None:
-        values = [v[key] for v in per_view]
-        return None if any(x is None for x in values) else sum(values) / len(values)
-
-    return {
-        "psnr": mean("psnr"),
-        "ssim": mean("ssim"),
-        "lpips": mean("lpips"),
-        "lpips_unavailable": unavailable,
-        "profile": prof,
-        "num_views": len(views),
-        "per_view": per_view,
-    }
+) -> dict[str, Any]:
+    """:func:`evaluate_renderer` of one expert (its training render path, without gradients)."""
+    return evaluate_renderer(
+        lambda camera: render_view(expert, camera, background, backend)[0], views, profile
+    )

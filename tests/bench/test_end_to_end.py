@@ -113,6 +113,7 @@ def test_latex(run):
     assert r"\providecommand{\rankfirst}" in text and r"\toprule" in text and "Reduced scale" in text
     res = read_result(run["ws"].result_path(_ok_slots(run)[0].task))
     assert f"{res['metrics']['psnr']:.2f}" in text, "our number appears in the table"
+    assert f"\\dynregion{{{res['metrics']['psnr_dynamic']:.2f}}}" in text, "with its dynamic-region PSNR"
     if spec.id == "tab17":
         assert r"\paperdelta{42.03}" in text or r"\paperdelta{43.95}" in text, "mutant: paper value and delta"
     if shutil.which("pdflatex"):
@@ -142,6 +143,20 @@ def test_plots_and_report(run):
     assert (
         rep["status"].startswith("reproduced at tiny preset") and "real data (dnerf:mutant)" in rep["status"]
     )
+    assert rep["latex"] == f"../tables/{spec.id}.tex"  # no absolute paths of this machine
+    # motion evidence: every expert scored on the full image and on D-NeRF's object / background regions
+    assert summary["experts"], "one row per expert and scene"
+    for row in summary["experts"]:
+        assert row["scene"] == "dnerf:mutant" and row["expert"] in ("deformable", "grid4d", "static", "mcmc")
+        for metric in ("psnr", "ssim", "lpips"):
+            assert set(row[metric]) == {"full", "dynamic", "static"}
+        assert all(5.0 < row["psnr"][r] < 60.0 for r in ("full", "dynamic", "static"))
+    if spec.id == "tab17":  # MoE-GS N=2: the routing signal of its gate maps
+        (routing,) = summary["routing"]
+        assert routing["table"] == "tab17" and routing["experts"] == ["deformable", "grid4d"]
+        assert 0.0 <= routing["coherence"] <= 1.0
+        assert len(routing["dynamic_share"]) == len(routing["static_share"]) == 2
+    assert "noise" in summary and "## Motion, routing and noise" in md
 
 
 def test_warm_rerun_reuses_everything(run):

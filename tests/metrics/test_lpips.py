@@ -57,6 +57,27 @@ def test_identical_is_zero_and_symmetric(frame, degraded):
 
 
 @needs_weights
+def test_masked_lpips_averages_the_spatial_map_over_the_region(frame, gen):
+    """Region LPIPS: where the images differ it is larger than where they agree, a mask's scale does
+    not matter, a full mask gives the spatial map's mean (close to the plain value), identical images 0."""
+    left = torch.zeros(frame.shape[:2])
+    left[:, : frame.shape[1] // 2] = 1.0
+    pred = frame.clone()
+    pred[:, : frame.shape[1] // 2] = (
+        pred[:, : frame.shape[1] // 2]
+        + 0.3 * torch.randn(pred[:, : frame.shape[1] // 2].shape, generator=gen)
+    ).clamp(0, 1)
+    on, off = lpips(pred, frame, mask=left).item(), lpips(pred, frame, mask=1.0 - left).item()
+    assert on > 2 * off > 0
+    assert lpips(pred, frame, mask=0.5 * left).item() == pytest.approx(on, rel=1e-5)
+    full = lpips(pred, frame, mask=torch.ones(frame.shape[:2])).item()
+    assert full == pytest.approx(lpips(pred, frame).item(), rel=0.1)
+    assert lpips(frame, frame, mask=left).item() == 0.0
+    with pytest.raises(ValueError, match="mask must have"):
+        lpips(pred, frame, mask=torch.ones(3, 3))
+
+
+@needs_weights
 def test_batch_matches_single(frame, degraded):
     preds = torch.stack(list(degraded.values()))
     batch = lpips(preds, frame.expand_as(preds))

@@ -23,6 +23,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from torch import Tensor
+
+from moegs.data._io import with_background
 from moegs.data.scene import Scene
 from moegs.data.synthetic.generate import generate, read_meta
 from moegs.data.synthetic.groundtruth import (
@@ -92,6 +95,7 @@ def load_synthetic(
     *,
     overrides: dict | None = None,
     progress: bool = True,
+    background: str | Tensor | None = None,
     **loader_kwargs,
 ) -> Scene:
     """Generate (if needed) and load a synthetic scene through the REAL loader of its layout.
@@ -102,12 +106,13 @@ def load_synthetic(
         seed: scene seed (textures, abrupt path, rig jitter).
         root: parent folder of the generations (default ``cache_root()/synthetic``).
         overrides: ``SyntheticSpec`` field overrides (e.g. ``{"num_frames": 4}``).
+        background: as ``load_scene``'s (D-NeRF layout: the RGBA images are composited on it).
         loader_kwargs: passed to ``load_n3v`` / ``load_dnerf`` (defaults here: native resolution, the
             whole frame window with ``duration = num_frames`` for n3v).
     Returns:
-        the loader's ``Scene`` with ``name = "synthetic:<name>"``, ``stand_in`` set, ground-truth dynamic
-        masks attached to views the loader left without ``load_mask``, and ``scene.meta["synthetic"]``
-        (folder, seed, preset, objects, ...).
+        the loader's ``Scene`` with ``name = "synthetic:<name>"``, ``stand_in`` set, the ground-truth
+        dynamic mask as every view's ``load_mask`` (instead of the D-NeRF loader's object alpha), and
+        ``scene.meta["synthetic"]`` (folder, seed, preset, objects, ...).
     """
     overrides = dict(overrides or {})
     spec = get_spec(name, preset, **overrides)
@@ -124,11 +129,11 @@ def load_synthetic(
             "time_mode": "global",
             **loader_kwargs,
         }
-        scene = load_n3v(folder, **kwargs)
+        scene = with_background(load_n3v, folder, background, **kwargs)
     else:
         from moegs.data.dnerf import load_dnerf
 
-        scene = load_dnerf(folder, **{"resolution_scale": 1.0, **loader_kwargs})
+        scene = with_background(load_dnerf, folder, background, **{"resolution_scale": 1.0, **loader_kwargs})
     return _decorate(scene, folder, name, spec)
 
 
@@ -138,10 +143,9 @@ def _decorate(scene: Scene, folder: Path, name: str, spec: SyntheticSpec) -> Sce
     meta = read_meta(folder) or {}
     scene.name = f"synthetic:{name}"
     scene.stand_in = f"{spec.stand_in_for} (synthetic stand-in)"
-    for view in [*scene.train, *scene.test]:
-        if view.load_mask is None:
-            mask_path = gt_files(folder, view.camera.name)[2]
-            view.load_mask = partial(load_mask, mask_path, (view.camera.width, view.camera.height))
+    for view in [*scene.train, *scene.test]:  # the ground-truth dynamic mask replaces a loader's mask
+        mask_path = gt_files(folder, view.camera.name)[2]
+        view.load_mask = partial(load_mask, mask_path, (view.camera.width, view.camera.height))
     info = {
         "dir": str(folder),
         "name": name,

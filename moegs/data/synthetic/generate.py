@@ -192,6 +192,7 @@ def _write_n3v(desc: SceneDescription, spec: SyntheticSpec, out: Path, progress:
     bounds, roundtrip = [], []
     t_render = t_encode = 0.0
     frame0: list[np.ndarray] = []
+    depth0: list[np.ndarray] = []
     bar = tqdm(
         total=len(cams) * T,
         desc=f"synthetic {spec.scene} ({spec.width}x{spec.height})",
@@ -230,6 +231,7 @@ def _write_n3v(desc: SceneDescription, spec: SyntheticSpec, out: Path, progress:
             )
         roundtrip.append(W.psnr_uint8(np.stack(frames), decoded))
         frame0.append(frames[0])
+        depth0.append(depth[0])
     bar.close()
     W.write_poses_bounds(out / "poses_bounds.npy", cams, bounds)
 
@@ -256,6 +258,18 @@ def _write_n3v(desc: SceneDescription, spec: SyntheticSpec, out: Path, progress:
             points_info = {"written": False, "error": str(err)}
         t_tri = time.perf_counter() - s
 
+    dense_info: dict = {"written": False}
+    if spec.dense_points:
+        train = [i for i, c in enumerate(cams) if c.name != "cam00"]
+        xyz, rgb, voxel = _dense_cloud(
+            [cams[i] for i in train],
+            [depth0[i] for i in train],
+            [frame0[i] for i in train],
+            spec.dense_points,
+        )
+        W.write_ply(out / DENSE_POINTS, xyz, rgb)
+        dense_info = {"written": True, "file": DENSE_POINTS, "count": len(xyz), "voxel": voxel}
+
     finite = [p for p in roundtrip if math.isfinite(p)]
     codec_name, pix_fmt, _ = W._codec_settings(spec.codec)
     return {
@@ -273,6 +287,7 @@ def _write_n3v(desc: SceneDescription, spec: SyntheticSpec, out: Path, progress:
             "roundtrip_psnr_db_min": min(finite) if finite else None,
         },
         "points": points_info,
+        "dense_points": dense_info,
         "gt_layout": {
             "depth": "gt/<cam>/depth.npy [T, H, W] float32",
             "ids": "gt/<cam>/ids.npy [T, H, W] uint8",
@@ -284,6 +299,31 @@ def _write_n3v(desc: SceneDescription, spec: SyntheticSpec, out: Path, progress:
             "triangulate_s": round(t_tri, 3),
         },
     }
+
+
+DENSE_POINTS = "points3D_downsample2.ply"
+"""The name 4DGaussians gives its dense N3V cloud; the N3V loader prefers it to every other cloud."""
+
+
+def _dense_cloud(
+    cams: list[Camera], depths: list[np.ndarray], images: list[np.ndarray], max_points: int
+) -> tuple[torch.Tensor, torch.Tensor, float]:
+    """Frame 0 of ``cams`` back-projected with the ground-truth depth, voxel-downsampled with 2 cm cells
+    growing by 1 cm until at most ``max_points`` remain (4DGaussians: COLMAP dense MVS of frame 0, then
+    ``scripts/downsample_point.py``). Returns ``(xyz, rgb, voxel)``."""
+    from moegs.data.points import backproject, voxel_downsample
+
+    parts = [
+        backproject(torch.from_numpy(d), c, torch.from_numpy(im).float() / 255.0)
+        for c, d, im in zip(cams, depths, images, strict=True)
+    ]
+    xyz, rgb = torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts])
+    voxel = 0.02
+    down = voxel_downsample(xyz, rgb, voxel)
+    while len(down[0]) > max_points:
+        voxel += 0.01
+        down = voxel_downsample(xyz, rgb, voxel)
+    return down[0], down[1], round(voxel, 4)
 
 
 def _held_out_times(n: int, seed: int) -> list[float]:

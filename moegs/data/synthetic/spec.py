@@ -7,7 +7,7 @@ import json
 from dataclasses import asdict, dataclass, fields, replace
 
 # Bump when the renderer, the scenes or the writers change what is written for the same spec.
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 
 LAYOUTS = ("n3v", "dnerf")
 CODECS = ("lossless", "yuv444", "yuv420")
@@ -34,7 +34,10 @@ class SyntheticSpec:
         rig_span: n3v: width of the camera rig in metres.
         orbit_radius: dnerf: camera distance to the target.
         triangulate: n3v: write ``points3D.ply`` triangulated by pycolmap from frame 0 of the training
-            cameras (the COLMAP step of the N3V pipelines), read by the N3V loader.
+            cameras (the sparse COLMAP step of the N3V pipelines).
+        dense_points: n3v: write ``points3D_downsample2.ply``, frame 0 of the training cameras back-projected
+            with the ground-truth depth and voxel-downsampled to at most this many points (0: none): the
+            analytic counterpart of 4DGaussians' dense MVS cloud, which the N3V loader prefers.
     """
 
     scene: str
@@ -53,6 +56,7 @@ class SyntheticSpec:
     rig_span: float = 2.0
     orbit_radius: float = 4.5
     triangulate: bool = True
+    dense_points: int = 40_000
 
     def __post_init__(self) -> None:
         if self.layout not in LAYOUTS:
@@ -96,10 +100,11 @@ PRESETS: dict[str, dict[str, SyntheticSpec]] = {
             "D-NeRF",
             width=100,
             height=100,
-            num_frames=20,
+            num_frames=50,
             num_val=5,
             num_test=5,
             hfov_deg=39.6,
+            orbit_radius=3.4,
         ),
         "paper": SyntheticSpec(
             "dnerf_like",
@@ -111,6 +116,7 @@ PRESETS: dict[str, dict[str, SyntheticSpec]] = {
             num_val=20,
             num_test=20,
             hfov_deg=39.6,
+            orbit_radius=3.4,
         ),
     },
 }

@@ -1,0 +1,119 @@
+"""What the run says about motion, routing and noise, read back from result JSONs (no torch).
+
+* ``expert_rows``: every expert cell's PSNR / SSIM / LPIPS on the full image, the dynamic region and the
+  static region (one row per expert, scene and dataset recipe; seed 0, full training budget);
+* ``routing_rows``: every MoE-GS cell's routing signal (``moegs.moe.winner_coherence`` of the winner map,
+  and the share of dynamic / static pixels each expert wins);
+* ``seed_noise``: the seed-to-seed spread of the stability runs (the ``seeds``-axis specs): the largest
+  max - min over seeds of any row, per metric. Claims whose margin is inside it are "within noise".
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from bench.plan import Plan
+from bench.results import ResultError, read_result
+from bench.spec import METRICS
+from bench.store import Workspace
+
+REGION_KEYS = {"full": "", "dynamic": "_dynamic", "static": "_static"}
+
+
+def _ok_results(plan: Plan, workspace: Workspace, kind: str):
+    """``(spec plan, slot, result)`` of every finished ``kind`` evaluation, each task once."""
+    seen: set[str] = set()
+    for sp in plan.specs:
+        for slot in sp.slots:
+            task = slot.task
+            if task is None or task.kind != kind or task.key in seen:
+                continue
+            seen.add(task.key)
+            path = workspace.result_path(task)
+            try:
+                result = read_result(path) if path.is_file() else None
+            except ResultError:
+                continue
+            if result is not None and result.get("status") == "ok":
+                yield sp, slot, result
+
+
+def _regions(metrics: dict[str, Any], name: str) -> dict[str, float | None]:
+    return {region: metrics.get(f"{name}{suffix}") for region, suffix in REGION_KEYS.items()}
+
+
+def expert_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
+    """``[{"scene", "dataset", "expert", "psnr": {"full", "dynamic", "static"}, "ssim": ..., "lpips": ...}]``
+    of the seed-0, full-budget expert cells."""
+    rows: dict[tuple[str, str, str], dict[str, Any]] = {}
+    for _sp, slot, result in _ok_results(plan, workspace, "expert"):
+        task = slot.task
+        if task.seed != 0 or "budget" in task.params:
+            continue
+        key = (task.scene, task.params.get("dataset", ""), task.params["expert"])
+        m = result["metrics"]
+        rows.setdefault(
+            key,
+            {
+                "scene": task.scene,
+                "dataset": task.params.get("dataset"),
+                "expert": task.params["expert"],
+                **{name: _regions(m, name) for name in ("psnr", "ssim", "lpips")},
+            },
+        )
+    return sorted(rows.values(), key=lambda r: (r["scene"], r["dataset"] or "", r["expert"]))
+
+
+def routing_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
+    """``[{"table", "scene", "experts", "router", "coherence", "dynamic_share", "static_share"}]`` of the
+    seed-0 MoE-GS cells that report a routing signal."""
+    rows = []
+    for sp, slot, result in _ok_results(plan, workspace, "moe"):
+        task = slot.task
+        routing = result.get("details", {}).get("routing")
+        if task.seed != 0 or not routing:
+            continue
+        rows.append(
+            {
+                "table": sp.spec.id,
+                "row": slot.row,
+                "scene": task.scene,
+                "experts": list(task.params["experts"]),
+                "router": task.params.get("router", "vapr"),
+                **routing,
+            }
+        )
+    return rows
+
+
+def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
+    """The largest seed-to-seed spread (max - min over seeds) of any row of the ``seeds``-axis specs, per
+    metric name of ``bench.spec.METRICS`` that the cells report; ``{"metrics": {name: dB}, "source"}``.
+    Empty ``metrics`` when no stability run has two finished seeds."""
+    spreads: dict[str, float] = {}
+    sources = []
+    for sp in plan.specs:
+        if sp.spec.axis != "seeds":
+            continue
+        sources.append(sp.spec.id)
+        by_row: dict[tuple[str, str], dict[int, dict[str, Any]]] = {}
+        for slot in sp.slots:
+            if slot.task is None or slot.scene is None:
+                continue
+            path = workspace.result_path(slot.task)
+            try:
+                result = read_result(path) if path.is_file() else None
+            except ResultError:
+                continue
+            if result is None or result.get("status") != "ok":
+                continue
+            by_row.setdefault((slot.row, slot.scene.name), {})[slot.seed] = result["metrics"]
+        for per_seed in by_row.values():
+            if len(per_seed) < 2:
+                continue
+            for name, m in METRICS.items():
+                values = [r.get(m.key) for r in per_seed.values()]
+                if any(v is None for v in values):
+                    continue
+                spreads[name] = max(spreads.get(name, 0.0), max(values) - min(values))
+    return {"metrics": spreads, "source": sources}

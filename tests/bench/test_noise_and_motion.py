@@ -1,0 +1,93 @@
+"""Claims that know the seed noise, claims re-checked on the dynamic region, and the routing signal."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from bench.claims import FAILED, HELD, NA, NOISE, better, exceeds, monotone, order, within
+from bench.registry import get_spec
+from bench.spec import Claim
+from moegs.moe import region_shares, winner_coherence
+
+
+class View:
+    """A values view over ``{(row, column, metric): value}`` with an optional noise level."""
+
+    def __init__(self, values: dict, noise: dict | None = None) -> None:
+        self.values, self.noise = values, noise or {}
+
+    def get(self, row, column, metric):
+        return self.values.get((row, column, metric))
+
+    def columns(self, selector):
+        return ["@mean"] if selector == "@mean" else list(selector)
+
+
+def psnr(**rows) -> dict:
+    return {(r, "@mean", "PSNR"): v for r, v in rows.items()}
+
+
+@pytest.mark.parametrize(
+    ("a", "b", "noise", "status"),
+    [
+        (28.5, 28.0, 0.0, HELD),  # no noise measured: the sign decides
+        (28.5, 28.0, 0.3, HELD),  # 0.5 dB margin > 0.3 dB spread
+        (28.2, 28.0, 0.3, NOISE),  # 0.2 dB margin inside the spread: decides nothing
+        (27.9, 28.0, 0.3, NOISE),
+        (27.5, 28.0, 0.3, FAILED),  # behind by more than the spread
+    ],
+)
+def test_better_knows_the_noise(a, b, noise, status):
+    assert better(View(psnr(A=a, B=b), {"PSNR": noise}), "A", "B").status == status
+
+
+def test_lpips_direction_and_other_checks_with_noise():
+    v = View({("A", "@mean", "LPIPS"): 0.10, ("B", "@mean", "LPIPS"): 0.11}, {"LPIPS": 0.02})
+    assert better(v, "A", "B", metric="LPIPS").status == NOISE
+    v = View(psnr(A=30.0, B=29.9, C=25.0), {"PSNR": 0.2})
+    assert order(v, ["A", "B", "C"]).status == NOISE  # A > B within noise, B > C clearly
+    assert order(View(psnr(A=30.0, B=31.0, C=25.0), {"PSNR": 0.2}), ["A", "B", "C"]).status == FAILED
+    assert within(View(psnr(A=30.0, B=30.25), {"PSNR": 0.2}), "A", "B", tolerance=0.1).status == NOISE
+    assert within(View(psnr(A=30.0, B=30.5), {"PSNR": 0.2}), "A", "B", tolerance=0.1).status == FAILED
+    steps = View({("A", c, "PSNR"): x for c, x in (("1", 30.0), ("2", 30.1))}, {"PSNR": 0.2})
+    assert monotone(steps, ["A"], ["1", "2"]).status == NOISE
+    assert (
+        exceeds(
+            View({("A", "x", "PSNR"): 30.0, ("B", "y", "PSNR"): 29.9}, {"PSNR": 0.2}), "A", "x", ["B"], "y"
+        ).status
+        == NOISE
+    )
+    assert better(View({}), "A", "B").status == NA
+
+
+def test_motion_specs_recheck_psnr_claims_on_the_dynamic_region():
+    spec = get_spec("tab03")
+    assert spec.motion
+    claims = spec.checked_claims()
+    twins = [c for c in claims if c.id.endswith("-dynamic")]
+    assert twins and all(c.args["metric"] == "PSNR dynamic" for c in twins)
+    assert len(claims) == len(spec.claims) + len(twins)
+    # claims on other metrics get no twin
+    assert Claim("x", "t", "better", {"a": "A", "b": "B", "metric": "SSIM"}).on_dynamic_region() is None
+    assert not get_spec("tab05").motion and get_spec("tab05").checked_claims() == list(
+        get_spec("tab05").claims
+    )
+
+
+def test_winner_coherence_separates_regions_from_noise():
+    regions = torch.zeros(3, 48, 64)
+    regions[0, :, :20], regions[1, :, 20:40], regions[2, :, 40:] = 1.0, 1.0, 1.0
+    assert winner_coherence(regions) == 1.0
+    noise = torch.rand(3, 48, 64, generator=torch.Generator().manual_seed(0))
+    assert 0.3 < winner_coherence(noise) < 0.6  # random winners: about half agree with their 5x5 majority
+
+
+def test_region_shares_count_winners_inside_and_outside_the_mask():
+    gates = torch.zeros(2, 10, 10)
+    gates[0, :, :5], gates[1, :, 5:] = 1.0, 1.0
+    mask = torch.zeros(10, 10)
+    mask[:, 5:8] = 1.0  # the dynamic region lies inside expert 1's half
+    shares = region_shares(gates, mask)
+    assert shares["dynamic"] == [0.0, 1.0]
+    assert shares["static"] == pytest.approx([50 / 70, 20 / 70])
