@@ -1,4 +1,5 @@
-"""The paper's published numbers, one JSON file per table in ``tables/paper/`` (stdlib + pandas, no torch).
+"""The paper's published numbers, one JSON file per table in ``tables/paper/`` (stdlib, no torch; pandas
+only for ``PaperTable.frame``).
 
 Each ``tabNN.json`` holds one table of the paper in long format: a list of values, one per printed
 cell, with ``row``, ``column``, ``metric``, ``value``, the ``printed`` text (keeps trailing zeros,
@@ -22,8 +23,6 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-
-import pandas as pd
 
 _REPO = Path(__file__).resolve().parent.parent
 PAPER_TABLES_DIR = _REPO / "tables" / "paper"
@@ -60,8 +59,11 @@ class PaperTable:
     notes: str  # transcription notes: inferred metadata, inconsistencies, marker conventions
     values: list[dict[str, Any]] = field(repr=False)  # one dict per printed cell (FRAME_COLUMNS keys)
 
-    def frame(self) -> pd.DataFrame:
-        """The values as a DataFrame with columns ``FRAME_COLUMNS`` (``value`` is text only in Table I)."""
+    def frame(self):
+        """The values as a ``pandas.DataFrame`` with columns ``FRAME_COLUMNS`` (``value`` is text only in
+        Table I); pandas is an optional dependency (the ``test`` / ``analysis`` extras)."""
+        import pandas as pd
+
         records = [{k: v.get(k) for k in FRAME_COLUMNS} for v in self.values]
         return pd.DataFrame(records, columns=FRAME_COLUMNS)
 

@@ -25,7 +25,8 @@ from moegs.data.synthetic.generate import frame_time, torch_threads
 from moegs.data.synthetic.raycast import Primitive, camera_rays, cast, render
 from moegs.data.synthetic.rigs import forward_facing_rig
 from moegs.data.synthetic.textures import Texture
-from moegs.data.synthetic.writers import VideoWriter, decode_video, psnr_uint8
+from moegs.data.synthetic.writers import psnr_uint8
+from moegs.io.video import VideoWriter, decode_video
 
 N3V_SMALL = {"width": 64, "height": 48, "num_frames": 6, "num_cameras": 4, "triangulate": False}
 DNERF_SMALL = {"width": 48, "height": 48, "num_frames": 6, "num_val": 2, "num_test": 2}

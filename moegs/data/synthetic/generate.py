@@ -23,6 +23,7 @@ from moegs.data.synthetic.raycast import render
 from moegs.data.synthetic.rigs import forward_facing_rig, orbit_cameras
 from moegs.data.synthetic.scenes import SceneDescription, build_scene
 from moegs.data.synthetic.spec import GENERATOR_VERSION, SyntheticSpec, get_spec, spec_hash
+from moegs.io.video import VideoWriter, codec_settings, decode_video
 
 META_FILE = "scene_meta.json"
 GENERATOR = "moegs.data.synthetic"
@@ -205,7 +206,7 @@ def _write_n3v(desc: SceneDescription, spec: SyntheticSpec, out: Path, progress:
         depth = np.zeros((T, spec.height, spec.width), np.float32)
         ids = np.zeros((T, spec.height, spec.width), np.uint8)
         frames = []
-        with W.VideoWriter(out / f"{cam.name}.mp4", spec.width, spec.height, spec.fps, spec.codec) as vw:
+        with VideoWriter(out / f"{cam.name}.mp4", spec.width, spec.height, spec.fps, spec.codec) as vw:
             for i in range(T):
                 t = frame_time(i, spec)
                 s = time.perf_counter()
@@ -223,7 +224,7 @@ def _write_n3v(desc: SceneDescription, spec: SyntheticSpec, out: Path, progress:
         np.save(folder / "ids.npy", ids)
         hit = depth[depth > 0]
         bounds.append((float(hit.min()) * 0.9, float(hit.max()) * 1.1))
-        decoded = W.decode_video(out / f"{cam.name}.mp4")
+        decoded = decode_video(out / f"{cam.name}.mp4")
         if decoded.shape != (T, spec.height, spec.width, 3):
             raise RuntimeError(
                 f"video round trip of {cam.name}: decoded {decoded.shape}, expected "
@@ -271,7 +272,7 @@ def _write_n3v(desc: SceneDescription, spec: SyntheticSpec, out: Path, progress:
         dense_info = {"written": True, "file": DENSE_POINTS, "count": len(xyz), "voxel": voxel}
 
     finite = [p for p in roundtrip if math.isfinite(p)]
-    codec_name, pix_fmt, _ = W._codec_settings(spec.codec)
+    codec_name, pix_fmt, _ = codec_settings(spec.codec)
     return {
         "cameras": [c.name for c in cams],
         "test_cameras": ["cam00"],
