@@ -75,10 +75,11 @@ class Recipe:
     @property
     def load_kwargs(self) -> dict[str, Any]:
         """``load_scene`` keyword arguments this run needs: the background, and the training resolution
-        for real scenes (stand-ins are generated at their own preset's size)."""
+        (stand-ins are generated at their own preset's size: only a user's resolution applies to them)."""
         kwargs: dict[str, Any] = {"background": self.background}
         scale = self.config.train.resolution_scale
-        if scale is not None and not self.scene.startswith("synthetic:"):
+        stand_in = self.scene.startswith("synthetic:")
+        if scale is not None and (not stand_in or "train.resolution_scale" in self.overrides):
             kwargs["resolution_scale"] = scale
         return kwargs
 

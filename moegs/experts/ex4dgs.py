@@ -321,7 +321,9 @@ class Ex4DGSConfig(ExpertConfig):
             "adjust_until": int(QUICK_ITERATIONS * 0.9),
             "strategy.densify_from": 30,
             "strategy.densify_until": int(QUICK_ITERATIONS * 0.75),
-            "strategy.densify_every": 50,  # N3V 300
+            # N3V 300; every 50 densifies 8 times in the short window: measured on dnerf:mutant (quick,
+            # 600 it) 24.53 dB with 6459 Gaussians vs 21.94 dB with 889 at every 100
+            "strategy.densify_every": 50,
             "strategy.prune_from": int(QUICK_ITERATIONS * 0.3),
             "strategy.prune_every": 150,
             # no small-radius pruning: 5 px at N3V's 1352x1014 is below one pixel at the quick resolution

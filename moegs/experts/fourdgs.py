@@ -296,6 +296,8 @@ class FourDGSConfig(StaticConfig):
             "strategy.coarse_iterations": coarse,
             "strategy.densify_from": 100,
             "strategy.densify_until": 450,
+            # every 50, not the original 100: the short window then densifies 8 times, not 4; measured on
+            # dnerf:mutant (quick, 600 it): 26.25 dB with 4220 Gaussians vs 24.30 dB with 2342 at every 100
             "strategy.densify_every": 50,
             # resets every 300 where the original resets at all (D-NeRF 3000; N3V/HyperNeRF: never)
             "strategy.reset_every": 300 if paper.strategy.reset_every < paper.train.iterations else NEVER,

@@ -16,7 +16,6 @@ from functools import cache
 from pathlib import Path
 
 import pytest
-import torch
 
 from moegs.data.scene import Scene
 from moegs.experts.base import Expert
@@ -50,34 +49,31 @@ def run_dir(name: str, scene: str, preset: str) -> Path:
 
 
 @cache
-def load_test_scene(scene: str, resolution_scale: float | None) -> Scene:
-    """A scene by name (cached per session); skips the test when its data is not staged."""
+def load_test_scene(scene: str, **load_kwargs) -> Scene:
+    """A scene by name, loaded with ``load_kwargs`` (cached per session); skips the test when its data
+    is not staged."""
     from moegs.data import load_scene
 
     try:
-        return load_scene(
-            scene, **({} if resolution_scale is None else {"resolution_scale": resolution_scale})
-        )
+        return load_scene(scene, **load_kwargs)
     except FileNotFoundError as err:
         pytest.skip(f"scene {scene!r} unavailable: {err}")
 
 
 @cache
 def trained_expert(name: str, scene: str, preset: str = "quick") -> TrainedRun:
-    """The expert ``name`` trained on ``scene`` with ``preset``, from the cache or trained now."""
-    from moegs.experts import get_expert_class
+    """The expert ``name`` trained on ``scene`` with the resolver's recipe at ``preset``
+    (``moegs.recipes.config_for``: what ``moegs train`` and the bench run), from the cache or trained now."""
+    from moegs.recipes import config_for
     from moegs.train.checkpoint import load_expert
-    from moegs.train.loop import train
+    from moegs.train.entry import train_recipe
 
-    cls = get_expert_class(name)
-    config = cls.config_class.from_preset(preset)
-    loaded = load_test_scene(scene, config.train.resolution_scale)
+    recipe = config_for(name, scene, preset)
+    loaded = load_test_scene(scene, **recipe.load_kwargs)
     path = run_dir(name, scene, preset)
     metrics_file = path / "metrics.json"
     if metrics_file.is_file() and json.loads(metrics_file.read_text()).get("completed"):
         expert, _ = load_expert(path, loaded)
         return TrainedRun(expert, loaded, json.loads(metrics_file.read_text()), path)
-    torch.manual_seed(config.train.seed)  # network init in from_scene: independent of earlier tests
-    expert = cls.from_scene(loaded, config)
-    metrics = train(expert, loaded, out_dir=path, progress=False)
-    return TrainedRun(expert.eval(), loaded, metrics, path)
+    expert, metrics = train_recipe(recipe, loaded, path, progress=False)
+    return TrainedRun(expert, loaded, metrics, path)
