@@ -52,6 +52,11 @@ class Camera:
             raise ValueError(f"Camera needs 0 < near < far, got near={self.near}, far={self.far}")
         if not torch.isfinite(self.K).all() or not torch.isfinite(self.world_to_camera).all():
             raise ValueError(f"Camera {self.name!r} has non-finite intrinsics or extrinsics")
+        fx, fy = float(self.K[0, 0]), float(self.K[1, 1])
+        if not (fx > 0 and fy > 0):
+            raise ValueError(f"Camera {self.name!r} needs positive focal lengths, got fx={fx}, fy={fy}")
+        if abs(float(torch.linalg.det(self.world_to_camera[:3, :3].double()))) < 1e-9:
+            raise ValueError(f"Camera {self.name!r} has a singular world_to_camera rotation")
 
     # -- derived quantities -------------------------------------------------------------------
     @property

@@ -1,6 +1,7 @@
 """``moegs`` command line: list, train, eval, render, export, compare, route.
 
     moegs list
+    moegs recipe --expert grid4d --scene n3v:coffee_martini   # the config a run would use, and why
     moegs train --expert static --scene dnerf:mutant --preset quick --out runs/static-mutant
     moegs eval runs/static-mutant --profile clean
     moegs render runs/static-mutant            # test views -> PNGs, video.mp4, psnr.csv
@@ -18,6 +19,8 @@ import argparse
 import json
 import sys
 from pathlib import Path
+
+from moegs.cli_types import positive_int, scene_name, seed, unit_scale, unit_time
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
@@ -40,19 +43,29 @@ def _load_scene(meta: dict):
 
     recipe = meta.get("recipe") or {}
     kwargs = {"background": recipe["background"]} if recipe.get("background") else {}
-    scale = meta["train"]["resolution_scale"]
+    scale = meta["train"].get("resolution_scale")
     if scale is not None and not meta["scene"].startswith("synthetic:"):
         kwargs["resolution_scale"] = scale
     return load_scene(meta["scene"], **kwargs)
 
 
+RUN_FIELDS = {"expert": str, "scene": str, "train": dict}
+"""Fields of a run's ``config.json`` the commands read, with their JSON types."""
+
+
 def _run_dir(path: str) -> tuple[Path, dict]:
-    """A run folder and its ``config.json``."""
+    """A run folder and its ``config.json`` (fields checked; errors name the file and the field)."""
+    from moegs.io import read_json
+
     run = Path(path)
     config = run / "config.json"
     if not config.is_file():
         raise FileNotFoundError(f"{run} is not a training run (no config.json); train one with `moegs train`")
-    return run, json.loads(config.read_text())
+    meta = read_json(config, "run config")
+    for field, kind in RUN_FIELDS.items():
+        if not isinstance(meta.get(field), kind):
+            raise ValueError(f"{config}: field {field!r} must be a {kind.__name__}, got {meta.get(field)!r}")
+    return run, meta
 
 
 def _load_run(path: str):
@@ -61,7 +74,7 @@ def _load_run(path: str):
 
     run, meta = _run_dir(path)
     scene = _load_scene(meta)
-    expert, _ = load_expert(run, scene)
+    expert, _ = load_expert(run, scene, expect=meta["expert"])
     return run, meta, scene, expert
 
 
@@ -81,6 +94,8 @@ def parse_overrides(items: list[str]) -> dict[str, object]:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
+    import shutil
+
     from moegs.data import load_scene
     from moegs.recipes import config_for
     from moegs.train.entry import train_recipe
@@ -92,12 +107,26 @@ def _cmd_train(args: argparse.Namespace) -> int:
     if args.resolution_scale is not None:
         overrides["train.resolution_scale"] = args.resolution_scale
     recipe = config_for(args.expert, args.scene, args.preset, overrides=overrides)
-    scene = load_scene(args.scene, **recipe.load_kwargs)
-    print(scene.summary())
-    print("recipe: " + "; ".join(recipe.steps))
+    iterations = recipe.config.train.iterations
+    every = args.checkpoint_every if args.checkpoint_every is not None else max(1, iterations // 10)
+    recipe = config_for(
+        args.expert, args.scene, args.preset, overrides={**overrides, "train.checkpoint_every": every}
+    )
     out = Path(
         args.out or Path("runs") / f"{args.expert}_{args.scene.replace(':', '_')}_{args.preset}_s{args.seed}"
     )
+    finished = _finished_run(out)
+    if finished is not None and not args.force:
+        print(
+            f"{out} holds a finished run (test PSNR {finished['test']['psnr']:.2f}); left as it is "
+            "(--force trains it again)"
+        )
+        return 0
+    if args.force and out.exists():
+        shutil.rmtree(out)
+    scene = load_scene(args.scene, **recipe.load_kwargs)
+    print(scene.summary())
+    print("recipe: " + "; ".join(recipe.steps))
     _, result = train_recipe(recipe, scene, out, resume=not args.no_resume, progress=not args.quiet)
     test = result["test"] or {}
     print(
@@ -105,6 +134,32 @@ def _cmd_train(args: argparse.Namespace) -> int:
         f"{result['train_seconds']:.1f} s training, test PSNR {test.get('psnr', float('nan')):.2f} "
         f"SSIM {test.get('ssim', float('nan')):.4f} -> {out}"
     )
+    return 0
+
+
+def _finished_run(out: Path) -> dict | None:
+    """The ``metrics.json`` of a completed run in ``out``, or None."""
+    path = out / "metrics.json"
+    if not path.is_file():
+        return None
+    try:
+        result = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path} is not valid JSON ({err}); remove it or pass --force") from err
+    return result if result.get("completed") and result.get("test") else None
+
+
+def _cmd_recipe(args: argparse.Namespace) -> int:
+    from moegs.io import to_dict
+    from moegs.recipes import config_for
+
+    recipe = config_for(args.expert, args.scene, args.preset, dataset=args.dataset)
+    if args.json:
+        print(json.dumps({"recipe": recipe.provenance(), "config": to_dict(recipe.config)}, indent=1))
+        return 0
+    print(f"{args.expert} on {args.scene} at {args.preset}:")
+    for step in recipe.steps:
+        print(f"  - {step}")
     return 0
 
 
@@ -129,6 +184,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
     import imageio.v3 as iio
     import torch
 
+    from moegs.io.video import VideoWriter
     from moegs.metrics import psnr
     from moegs.train.evaluate import render_view
 
@@ -154,7 +210,10 @@ def _cmd_render(args: argparse.Namespace) -> int:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    iio.imwrite(out / "video.mp4", frames, fps=args.fps, codec="libx264", macro_block_size=1)
+    height, width = frames[0].shape[:2]
+    with VideoWriter(out / "video.mp4", width, height, args.fps, codec="yuv444") as video:
+        for frame in frames:
+            video.write(frame)
     print(f"{len(frames)} test views -> {out} (PNGs, video.mp4, psnr.csv)")
     return 0
 
@@ -187,13 +246,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="moegs", description="Mixture-of-Experts dynamic Gaussian Splatting"
     )
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an error")
     sub = parser.add_subparsers(dest="command", required=True)
 
     sub.add_parser("list", help="registered experts and the scenes found under the data root")
 
     p = sub.add_parser("train", help="train one expert on one scene")
     p.add_argument("--expert", required=True, help="registry name (see `moegs list`)")
-    p.add_argument("--scene", required=True, help="<dataset>:<scene>, e.g. dnerf:mutant")
+    p.add_argument("--scene", required=True, type=scene_name, help="<dataset>:<scene>, e.g. dnerf:mutant")
     p.add_argument(
         "--preset",
         default="quick",
@@ -201,9 +261,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="recipe preset: quick (CPU minutes) or paper (the original's recipe for the scene's dataset)",
     )
     p.add_argument("--out", help="run folder (default runs/<expert>_<scene>_<preset>_s<seed>)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--iterations", type=int, help="override the preset's number of iterations")
-    p.add_argument("--resolution-scale", type=float, help="override the preset's image scale")
+    p.add_argument("--seed", type=seed, default=0)
+    p.add_argument("--iterations", type=positive_int, help="override the preset's number of iterations")
+    p.add_argument("--resolution-scale", type=unit_scale, help="override the preset's image scale in (0, 1]")
     p.add_argument(
         "--set",
         nargs="*",
@@ -213,20 +273,42 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--no-resume", action="store_true", help="start over even if the run folder has a checkpoint"
     )
+    p.add_argument(
+        "--checkpoint-every",
+        type=positive_int,
+        help="write a resumable checkpoint every N iterations (default: a tenth of the run)",
+    )
+    p.add_argument(
+        "--force", action="store_true", help="train again even if the run folder holds a finished run"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("recipe", help="the config a run uses: dataset preset, scene values, reductions")
+    p.add_argument("--expert", required=True, help="registry name (see `moegs list`)")
+    p.add_argument(
+        "--scene", required=True, type=scene_name, help="<dataset>:<scene>, e.g. n3v:coffee_martini"
+    )
+    p.add_argument("--preset", default="paper", choices=["quick", "paper"])
+    p.add_argument("--dataset", help="the dataset whose recipe applies (default: the scene's)")
+    p.add_argument("--json", action="store_true", help="the provenance and the full config as JSON")
 
     p = sub.add_parser("eval", help="evaluate a trained run on its test views")
     p.add_argument("run", help="run folder written by `moegs train`")
-    p.add_argument("--profile", default="moegs", help="metric profile: moegs (paper conventions) or clean")
+    p.add_argument(
+        "--profile",
+        default="moegs",
+        choices=["moegs", "clean"],
+        help="metric profile: moegs (paper conventions) or clean",
+    )
 
     p = sub.add_parser("render", help="render the test views to PNGs, an mp4 and a per-view PSNR csv")
     p.add_argument("run")
     p.add_argument("--out", help="output folder (default <run>/renders)")
-    p.add_argument("--fps", type=int, default=10)
+    p.add_argument("--fps", type=positive_int, default=10)
 
     p = sub.add_parser("export", help="write the Gaussians at one time as a 3DGS PLY")
     p.add_argument("run")
-    p.add_argument("--time", type=float, default=0.0, help="normalised time in [0, 1]")
+    p.add_argument("--time", type=unit_time, default=0.0, help="normalised time in [0, 1]")
     p.add_argument("--out", help="PLY path (default <run>/point_cloud_t<time>.ply)")
 
     p = sub.add_parser("compare", help="train and evaluate several experts on one scene; per-expert table")
@@ -244,6 +326,7 @@ def build_parser() -> argparse.ArgumentParser:
 _COMMANDS = {
     "list": _cmd_list,
     "train": _cmd_train,
+    "recipe": _cmd_recipe,
     "eval": _cmd_eval,
     "render": _cmd_render,
     "export": _cmd_export,
@@ -253,12 +336,27 @@ _COMMANDS = {
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command. Every error ends in one line on stderr naming what was wrong (exit 2 for bad input
+    or files, 1 for anything unexpected, 130 when interrupted); ``--debug`` raises it with its traceback."""
+    from moegs.errors import INPUT_ERRORS, TrainingInterrupted, describe_error
+
     args = build_parser().parse_args(argv)
+    prefix = f"moegs {args.command}:"
     try:
         return _COMMANDS[args.command](args)
-    except (ValueError, FileNotFoundError) as err:
-        print(f"moegs {args.command}: {err}", file=sys.stderr)
-        return 2
+    except TrainingInterrupted as err:
+        print(f"{prefix} interrupted: {err}", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:
+        if args.debug:
+            raise
+        print(f"{prefix} interrupted before anything could be saved", file=sys.stderr)
+        return 130
+    except Exception as err:  # noqa: BLE001 - the one place every error becomes one line
+        if args.debug:
+            raise
+        print(f"{prefix} {describe_error(err)}", file=sys.stderr)
+        return 2 if isinstance(err, INPUT_ERRORS) else 1
 
 
 if __name__ == "__main__":

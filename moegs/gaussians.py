@@ -19,7 +19,7 @@ class GaussianFrame:
     Attributes:
         means: centres ``[N, 3]`` in world space.
         quats: unit quaternions ``[N, 4]`` in (w, x, y, z) order.
-        scales: positive standard deviations along the local axes ``[N, 3]``.
+        scales: standard deviations along the local axes ``[N, 3]`` (only their squares enter the covariance).
         opacities: ``[N]`` in (0, 1).
         colors: per-Gaussian channels ``[N, D]`` (RGB, features, routing weights ...), or ``None``.
         sh: spherical-harmonic coefficients ``[N, B, C]`` with ``B = (degree + 1) ** 2``, or ``None``.
@@ -55,6 +55,27 @@ class GaussianFrame:
             bases = self.sh.shape[1]
             if bases not in (1, 4, 9, 16):
                 raise ValueError(f"GaussianFrame.sh has {bases} bases; expected 1, 4, 9 or 16 (degree 0-3)")
+
+    def check_values(self, what: str = "GaussianFrame") -> None:
+        """Raise ``ValueError`` naming the field when a dtype or a value is outside its domain: float32 or
+        float64 throughout, opacities in [0, 1], quaternions of non-zero norm. The sign of a scale is not
+        checked: the covariance depends on its square, as in the 3DGS rasterizer, and DeformableGS adds
+        its scale offsets after the activation, so a scale may legitimately be negative there."""
+        dtype = self.means.dtype
+        if dtype not in (torch.float32, torch.float64):
+            raise ValueError(f"{what}.means must be float32 or float64, got {dtype}")
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if value is not None and value.dtype != dtype:
+                raise ValueError(f"{what}.{f.name} is {value.dtype} but means are {dtype}; use one dtype")
+        checks = {
+            "opacities must be in [0, 1]": ((self.opacities < 0) | (self.opacities > 1)).any(),
+            "quats must have a non-zero norm": (self.quats.square().sum(-1) == 0).any(),
+        }
+        flags = torch.stack(list(checks.values())).tolist()  # one device sync for all checks
+        for (message, _), bad in zip(checks.items(), flags, strict=True):
+            if bad:
+                raise ValueError(f"{what}: {message}")
 
     def check_finite(self, what: str = "GaussianFrame") -> None:
         """Raise ``FloatingPointError`` naming the first field holding NaN or Inf."""

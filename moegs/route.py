@@ -17,12 +17,21 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
+from moegs.cli_types import non_negative_int, positive_int, scene_name, seed
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--experts", required=True, help="comma-separated registry names, e.g. deformable,grid4d")
-    p.add_argument("--scene", required=True, help="<dataset>:<scene>, e.g. dnerf:mutant")
-    p.add_argument("--preset", default="quick", help="experts' and router's preset: quick or paper")
-    p.add_argument("--router", default="vapr", help="vapr (volume-aware pixel), pixel or volume")
+    p.add_argument("--scene", required=True, type=scene_name, help="<dataset>:<scene>, e.g. dnerf:mutant")
+    p.add_argument(
+        "--preset", default="quick", choices=["quick", "paper"], help="experts' and router's preset"
+    )
+    p.add_argument(
+        "--router",
+        default="vapr",
+        choices=["vapr", "pixel", "volume"],
+        help="vapr (volume-aware pixel), pixel or volume",
+    )
     p.add_argument(
         "--convention",
         default="code",
@@ -30,17 +39,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="router conventions: code (the authors' code, which produced the paper's numbers) or paper "
         "(the paper's wording)",
     )
-    p.add_argument("--iterations", type=int, help="override the router's iterations")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--iterations", type=positive_int, help="override the router's iterations")
+    p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--out", help="output folder")
-    p.add_argument("--gate-views", type=int, default=4, help="test views drawn as gate figures (0: none)")
+    p.add_argument(
+        "--gate-views", type=non_negative_int, default=4, help="test views drawn as gate figures (0: none)"
+    )
+    p.add_argument(
+        "--checkpoint-every",
+        type=positive_int,
+        help="write a resumable router checkpoint every N iterations (default: a tenth of the run)",
+    )
+    p.add_argument(
+        "--force", action="store_true", help="train the router again even if its folder holds a finished run"
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
 def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress: bool):
     """Train (or reuse) each expert with its recipe; returns ``(experts, scene)``: the scene loaded as the
     first expert's recipe loads it (experts on RGBA datasets must agree on the background)."""
-    from moegs.compare import _frames, run_expert, scene_kwargs
+    from moegs.compare import _finished, _frames, run_expert, scene_kwargs
     from moegs.data import load_scene
     from moegs.recipes import config_for
     from moegs.train.checkpoint import load_expert
@@ -62,7 +81,8 @@ def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress
     frames = _frames(scene_name, preset, None)
     scenes: dict = {}
     for name in names:
-        run_expert(name, scene_name, preset, out / name, frames, scenes, progress)
+        if _finished(out / name / "metrics.json") is None:  # a finished expert run is reused as it is
+            run_expert(name, scene_name, preset, out / name, frames, scenes, progress)
     scene = load_scene(scene_name, **scene_kwargs(recipes[0], frames))
     return [load_expert(out / name, scene)[0] for name in names], scene
 
@@ -95,20 +115,45 @@ def write_gate_figures(model, scene, folder: Path, count: int) -> list[Path]:
     return paths
 
 
+def finished_router(folder: Path, config) -> dict | None:
+    """The metrics of a completed router run in ``folder`` trained with ``config`` (None otherwise)."""
+    from moegs.io import read_json, to_dict
+    from moegs.io.config import config_changes
+
+    if not (folder / "metrics.json").is_file() or not (folder / "config.json").is_file():
+        return None
+    metrics = read_json(folder / "metrics.json", "router metrics")
+    saved = read_json(folder / "config.json", "router config").get("router", {})
+    if not metrics.get("completed") or config_changes(saved, to_dict(config), ("checkpoint_every",)):
+        return None
+    return metrics
+
+
 def main(args: argparse.Namespace) -> int:
+    from moegs.experts import get_spec
     from moegs.moe import RouterConfig, load_moe, router_preset, train_router
+    from moegs.moe.model import ROUTER_CHECKPOINT
 
     names = [n.strip() for n in args.experts.split(",") if n.strip()]
-    if len(names) < 1:
-        raise ValueError("--experts needs at least one expert name")
+    for name in names:
+        get_spec(name)  # unknown names fail before any training
+    if len(names) < 2 or len(set(names)) != len(names):
+        raise ValueError(f"--experts needs at least two different experts to route between, got {names}")
     out = Path(args.out or Path("runs") / f"route_{args.scene.replace(':', '_')}_{args.preset}_s{args.seed}")
     experts, scene = _experts(names, args.scene, args.preset, out, not args.quiet)
     config = RouterConfig.from_preset(router_preset(args.preset, args.convention))
     config = replace(config, variant=args.router, seed=args.seed)
     if args.iterations is not None:
         config = replace(config, iterations=args.iterations)
+    config = replace(config, checkpoint_every=args.checkpoint_every or max(1, config.iterations // 10))
     folder = out / f"router_{args.router}"
-    result = train_router(experts, scene, config, folder, progress=not args.quiet)
+    result = finished_router(folder, config) if not args.force else None
+    if result is not None:
+        print(f"{folder} holds a finished router run (its metrics are kept; --force trains again)")
+    else:
+        if args.force:
+            (folder / ROUTER_CHECKPOINT).unlink(missing_ok=True)
+        result = train_router(experts, scene, config, folder, progress=not args.quiet)
     model = load_moe(folder, experts)
     figures = write_gate_figures(model, scene, folder / "gates", args.gate_views) if args.gate_views else []
     test = result["test"]

@@ -80,7 +80,8 @@ def list_datasets() -> list[str]:
     return list(_DATASETS)
 
 
-def _parse(name: str) -> tuple[str, str]:
+def parse_scene_name(name: str) -> tuple[str, str]:
+    """``(dataset, scene)`` of ``<dataset>:<scene>``; ``ValueError`` naming the valid datasets otherwise."""
     if ":" not in name:
         raise ValueError(f"scene name must be '<dataset>:<scene>', got {name!r}; datasets: {list_datasets()}")
     dataset, scene = name.split(":", 1)
@@ -109,7 +110,7 @@ def list_scenes(dataset: str) -> list[str]:
 
 def resolve_scene_path(name: str) -> Path:
     """Folder of a real scene under the data root; ``FileNotFoundError`` says where it looked and why."""
-    dataset, scene = _parse(name)
+    dataset, scene = parse_scene_name(name)
     module, _, markers, layout = _DATASETS[dataset]
     if not markers:
         raise ValueError(f"{name!r} is generated, it has no folder")
@@ -149,7 +150,7 @@ def load_scene(
             what renders show where no Gaussian covers a pixel. None: the dataset's default.
         **kwargs: passed to the dataset's loader (``resolution_scale``, ``frames`` ...).
     """
-    dataset, scene = _parse(name)
+    dataset, scene = parse_scene_name(name)
     module_name, fn_name, _, layout = _DATASETS[dataset]
     module = importlib.import_module(module_name)
     loader = getattr(module, fn_name)

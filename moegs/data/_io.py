@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import inspect
 import json
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -53,6 +54,59 @@ def key(mapping: Any, name: str | int, path: Path, where: str = "") -> Any:
         found = sorted(map(str, mapping))[:12] if isinstance(mapping, dict) else type(mapping).__name__
         raise KeyError(f"{path}: missing key {name!r}{place} (found {found})")
     return mapping[name]
+
+
+def _field(name: str | int, where: str) -> str:
+    return f"{where}.{name}" if where else repr(name)
+
+
+def number(mapping: Any, name: str | int, path: Path, where: str = "") -> float:
+    """``mapping[name]`` as a finite float; ``TypeError`` naming file and field for anything else."""
+    value = key(mapping, name, path, where)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise TypeError(f"{path}: {_field(name, where)} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def text(mapping: Any, name: str | int, path: Path, where: str = "") -> str:
+    """``mapping[name]`` as a string; ``TypeError`` naming file and field otherwise."""
+    value = key(mapping, name, path, where)
+    if not isinstance(value, str):
+        raise TypeError(f"{path}: {_field(name, where)} must be a string, got {value!r}")
+    return value
+
+
+def entries(mapping: Any, name: str | int, path: Path, where: str = "") -> list:
+    """``mapping[name]`` as a non-empty list; ``TypeError``/``ValueError`` naming file and field."""
+    value = key(mapping, name, path, where)
+    if not isinstance(value, list):
+        raise TypeError(f"{path}: {_field(name, where)} must be a list, got {type(value).__name__}")
+    if not value:
+        raise ValueError(f"{path}: {_field(name, where)} is empty")
+    return value
+
+
+def matrix(mapping: Any, name: str | int, path: Path, shape: tuple[int, ...], where: str = "") -> Tensor:
+    """``mapping[name]``, nested lists of finite numbers of ``shape``, as float64; errors name the field."""
+    value = key(mapping, name, path, where)
+    expected = "x".join(map(str, shape))
+    try:
+        tensor = torch.tensor(value, dtype=torch.float64)
+    except (TypeError, ValueError, RuntimeError):
+        raise TypeError(f"{path}: {_field(name, where)} must be a {expected} array of numbers") from None
+    if tuple(tensor.shape) != shape:
+        raise ValueError(f"{path}: {_field(name, where)} must be {expected}, got {list(tensor.shape)}")
+    if not torch.isfinite(tensor).all():
+        raise ValueError(f"{path}: {_field(name, where)} has NaN or Inf")
+    return tensor
+
+
+def vector(mapping: Any, name: str | int, path: Path, where: str = "") -> list[float]:
+    """``mapping[name]``, a list of finite numbers of any length; errors name the file and the field."""
+    value = key(mapping, name, path, where)
+    if not isinstance(value, list):
+        raise TypeError(f"{path}: {_field(name, where)} must be a list of numbers, got {value!r}")
+    return matrix(mapping, name, path, (len(value),), where).tolist()
 
 
 # -- images -----------------------------------------------------------------------------------------

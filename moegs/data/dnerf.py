@@ -35,11 +35,14 @@ from moegs.data._init_points import box_points
 from moegs.data._io import (
     background_color,
     camera_extent,
+    entries,
     image_size,
-    key,
     load_alpha_mask,
     load_json,
     load_rgb,
+    matrix,
+    number,
+    text,
 )
 from moegs.data.scene import Scene, View
 
@@ -63,21 +66,21 @@ def _read_split(
 ) -> tuple[list[View], tuple[int, int]]:
     path = root / f"transforms_{split}.json"
     meta = load_json(path, f"D-NeRF {split} split (expected transforms_{split}.json in {root})")
-    angle = float(key(meta, "camera_angle_x", path))
-    frames = key(meta, "frames", path)
-    if not frames:
-        raise ValueError(f"{path}: 'frames' is empty")
+    angle = number(meta, "camera_angle_x", path)
+    if not 0.0 < angle < math.pi:
+        raise ValueError(f"{path}: 'camera_angle_x' must be a field of view in (0, pi) radians, got {angle}")
+    frames = entries(meta, "frames", path)
     views = []
     for i, fr in enumerate(frames):
         where = f"frames[{i}]"
-        rel = str(key(fr, "file_path", path, where))
+        rel = text(fr, "file_path", path, where)
         img_path = (root / rel).with_suffix(".png") if not rel.endswith(".png") else root / rel
         if native is None:
             native = image_size(img_path)
-        c2w = torch.tensor(key(fr, "transform_matrix", path, where), dtype=torch.float64)
-        if c2w.shape != (4, 4):
-            raise ValueError(f"{path}: {where}.transform_matrix must be 4x4, got {list(c2w.shape)}")
-        t = float(key(fr, "time", path, where))
+        c2w = matrix(fr, "transform_matrix", path, (4, 4), where)
+        if abs(float(torch.linalg.det(c2w[:3, :3]))) < 1e-9:
+            raise ValueError(f"{path}: {where}.transform_matrix has a singular rotation")
+        t = number(fr, "time", path, where)
         if not 0.0 <= t <= 1.0:
             raise ValueError(f"{path}: {where}.time = {t} is outside [0, 1]")
         focal = 0.5 * native[0] / math.tan(0.5 * angle)

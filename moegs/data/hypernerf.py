@@ -40,7 +40,17 @@ from torch import Tensor
 
 from moegs.camera import Camera, intrinsics
 from moegs.data._init_points import greyish_colors, ply_points, shared_volume_points
-from moegs.data._io import camera_extent, image_size, key, load_json, load_rgb, points_bbox
+from moegs.data._io import (
+    camera_extent,
+    image_size,
+    key,
+    load_json,
+    load_rgb,
+    matrix,
+    number,
+    points_bbox,
+    vector,
+)
 from moegs.data.scene import PointCloud, Scene, View
 
 
@@ -80,15 +90,15 @@ def _camera(
 ) -> tuple[Camera, float]:
     path = root / "camera" / f"{item}.json"
     cj = load_json(path, f"HyperNeRF camera {item} (expected camera/<id>.json)")
-    R = torch.tensor(key(cj, "orientation", path), dtype=torch.float64)
-    pos = torch.tensor(key(cj, "position", path), dtype=torch.float64)
-    f = float(key(cj, "focal_length", path))
-    fy = f * float(cj.get("pixel_aspect_ratio", 1.0))
-    full = [float(v) for v in key(cj, "image_size", path)]
+    R = matrix(cj, "orientation", path, (3, 3))
+    pos = matrix(cj, "position", path, (3,))
+    f = number(cj, "focal_length", path)
+    fy = f * (number(cj, "pixel_aspect_ratio", path) if "pixel_aspect_ratio" in cj else 1.0)
+    full = matrix(cj, "image_size", path, (2,)).tolist()
     if principal_point == "centered":
         cx, cy = size[0] * factor / 2, size[1] * factor / 2
     elif principal_point == "calibrated":
-        cx, cy = (float(v) for v in key(cj, "principal_point", path))
+        cx, cy = matrix(cj, "principal_point", path, (2,)).tolist()
     else:
         raise ValueError(f"principal_point must be 'centered' or 'calibrated', got {principal_point!r}")
     expected = (round(full[0] / factor), round(full[1] / factor))
@@ -98,14 +108,15 @@ def _camera(
             f"{full[0]:g}x{full[1]:g} / {factor} = {expected[0]}x{expected[1]}"
         )
     K = intrinsics(f / factor, fy / factor, cx / factor, cy / factor)
-    cam = Camera(
-        K=K, world_to_camera=nerfies_to_w2c(R, pos, center, scale), width=size[0], height=size[1], name=item
-    )
-    distortion = max(
-        [abs(float(v)) for v in cj.get("radial_distortion", [])]
-        + [abs(float(v)) for v in cj.get("tangential_distortion", [])]
-        + [abs(float(cj.get("skew", 0)))]
-    )
+    try:
+        w2c = nerfies_to_w2c(R, pos, center, scale)
+        cam = Camera(K=K, world_to_camera=w2c, width=size[0], height=size[1], name=item)
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None
+    radial = vector(cj, "radial_distortion", path) if "radial_distortion" in cj else []
+    tangential = vector(cj, "tangential_distortion", path) if "tangential_distortion" in cj else []
+    skew = number(cj, "skew", path) if "skew" in cj else 0.0
+    distortion = max(abs(v) for v in [*radial, *tangential, skew])
     return cam, distortion
 
 
@@ -169,11 +180,13 @@ def load_hypernerf(
     metadata = load_json(md_path, "HyperNeRF metadata (expected metadata.json)")
     sc_path = root / "scene.json"
     scene_json = load_json(sc_path, "HyperNeRF scene normalisation (expected scene.json)")
-    center = torch.tensor(key(scene_json, "center", sc_path), dtype=torch.float64)
-    scale = float(key(scene_json, "scale", sc_path))
+    center = matrix(scene_json, "center", sc_path, (3,))
+    scale = number(scene_json, "scale", sc_path)
     train_ids, test_ids, split = _split(dataset, ds_path, split)
     all_ids = [str(i) for i in key(dataset, "ids", ds_path)]
-    stamps = {i: int(key(key(metadata, i, md_path), time_key, md_path, f"metadata[{i!r}]")) for i in all_ids}
+    stamps = {
+        i: int(number(key(metadata, i, md_path), time_key, md_path, f"metadata[{i!r}]")) for i in all_ids
+    }
     t_max = max(stamps.values()) or 1
 
     size = image_size(rgb_dir / f"{train_ids[0]}.png")

@@ -85,16 +85,19 @@ def _views(
             )
         time = normalised_time(t, window[0], window[1], T, time_mode)
         for k, w2c, fn, cam_id in zip(ks, w2cs, fns, cams, strict=True):
-            cam = Camera(
-                K=torch.tensor(k, dtype=torch.float32),
-                world_to_camera=torch.tensor(w2c, dtype=torch.float32),
-                width=native[0],
-                height=native[1],
-                time=time,
-                camera_id=int(cam_id),
-                frame=t,
-                name=f"cam{int(cam_id):02d}/{t:06d}",
-            )
+            try:
+                cam = Camera(
+                    K=torch.tensor(k, dtype=torch.float32),
+                    world_to_camera=torch.tensor(w2c, dtype=torch.float32),
+                    width=native[0],
+                    height=native[1],
+                    time=time,
+                    camera_id=int(cam_id),
+                    frame=t,
+                    name=f"cam{int(cam_id):02d}/{t:06d}",
+                )
+            except (TypeError, ValueError, RuntimeError) as err:  # wrong shapes or values in the json
+                raise ValueError(f"{path}: time step {t}, camera {cam_id!r}: {err}") from None
             if scale != 1.0:
                 cam = cam.scaled(scale)
             size = (cam.width, cam.height)

@@ -20,6 +20,8 @@ from safetensors import safe_open
 from safetensors.torch import save_file
 from torch import Tensor
 
+from moegs.errors import IntegrityError
+
 _META_KEY = "moegs"
 _TENSOR = "__tensor__"
 _INT_KEYS = "__int_keys__"
@@ -56,14 +58,28 @@ def _join(tree: Any, tensors: dict[str, Tensor]) -> Any:
     return tree
 
 
+def _umask_mode() -> int:
+    """Permission bits a plain new file gets under the process umask (``mkstemp`` would give 0600)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def _temporary(path: Path) -> str:
+    """A new temporary file beside ``path`` with the umask's permissions; returns its name."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.fchmod(fd, _umask_mode())
+    os.close(fd)
+    return tmp
+
+
 def save_checkpoint(path: str | Path, state: dict) -> Path:
     """Write ``state`` atomically to ``path`` (``.safetensors``); returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tensors: dict[str, Tensor] = {}
     meta = json.dumps(_split(state, "", tensors), allow_nan=False)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
+    tmp = _temporary(path)
     try:
         save_file(tensors, tmp, metadata={_META_KEY: meta})
         os.replace(tmp, path)
@@ -78,23 +94,45 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint {path} does not exist")
-    with safe_open(str(path), framework="pt", device=str(device)) as f:
-        meta = (f.metadata() or {}).get(_META_KEY)
-        if meta is None:
-            raise ValueError(
-                f"{path} is a safetensors file but not a moegs checkpoint (no '{_META_KEY}' metadata)"
-            )
-        tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118 - safe_open has no iterator
-    return _join(json.loads(meta), tensors)
+    try:
+        with safe_open(str(path), framework="pt", device=str(device)) as f:
+            meta = (f.metadata() or {}).get(_META_KEY)
+            tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118 - safe_open has no iterator
+    except Exception as err:  # safetensors raises its own SafetensorError (and OSError on short reads)
+        reason = " ".join(str(err).split())
+        raise IntegrityError(f"{path}: not a readable safetensors file ({reason})") from None
+    if meta is None:
+        raise IntegrityError(
+            f"{path}: a safetensors file but not a moegs checkpoint (no '{_META_KEY}' metadata)"
+        )
+    try:
+        tree = json.loads(meta)
+    except json.JSONDecodeError as err:
+        raise IntegrityError(f"{path}: damaged checkpoint metadata ({err})") from None
+    return _join(tree, tensors)
 
 
 def write_json(path: str | Path, value: Any) -> Path:
     """Write ``value`` as indented JSON atomically."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
+    tmp = _temporary(path)
+    with open(tmp, "w") as f:
         json.dump(value, f, indent=2, allow_nan=True)
         f.write("\n")
     os.replace(tmp, path)
     return path
+
+
+def read_json(path: str | Path, what: str = "JSON file") -> dict[str, Any]:
+    """A JSON object from ``path``; errors name the file (``FileNotFoundError``, ``IntegrityError``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{what} {path} does not exist")
+    try:
+        value = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise IntegrityError(f"{path}: not valid JSON ({err})") from None
+    if not isinstance(value, dict):
+        raise IntegrityError(f"{path}: expected a JSON object, got {type(value).__name__}")
+    return value

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import types
 import typing
 from collections.abc import Callable, Mapping
 from typing import Any, Self
@@ -37,12 +38,44 @@ def _qualname(cls: type) -> str:
     return f"{cls.__module__}:{cls.__qualname__}"
 
 
-def _resolve(name: str) -> type:
-    module, _, qual = name.partition(":")
-    obj: Any = importlib.import_module(module)
-    for part in qual.split("."):
-        obj = getattr(obj, part)
-    return obj
+def _subclass_named(bases: tuple[type, ...], name: str) -> type | None:
+    """The class called ``name`` among ``bases`` and their (loaded) subclasses."""
+    seen, todo = set(), list(bases)
+    while todo:
+        cls = todo.pop()
+        if cls in seen:
+            continue
+        seen.add(cls)
+        if _qualname(cls) == name:
+            return cls
+        todo.extend(cls.__subclasses__())
+    return None
+
+
+def _resolve(name: Any, bases: tuple[type, ...]) -> type:
+    """The config class recorded as ``name`` (``module:Qualname``): one of ``bases`` or a subclass of one.
+    Only ``moegs`` modules are imported to find it, so a crafted file cannot make loading import
+    anything else."""
+    expected = " or ".join(b.__name__ for b in bases)
+    if not isinstance(name, str):
+        raise ValueError(f"config {_TYPE} must be a 'module:Class' string, got {name!r}")
+    found = _subclass_named(bases, name)
+    module = name.partition(":")[0]
+    if found is None and (module == "moegs" or module.startswith("moegs.")):
+        try:
+            importlib.import_module(module)
+        except ImportError:
+            pass
+        found = _subclass_named(bases, name)
+    if found is None:
+        raise ValueError(f"config {_TYPE} {name!r} is not {expected} or a moegs subclass of it")
+    return found
+
+
+def _config_bases(hint: Any) -> tuple[type, ...]:
+    """The dataclasses a field annotated ``hint`` may hold (``A``, ``A | None`` ...)."""
+    options = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
+    return tuple(o for o in options if isinstance(o, type) and dataclasses.is_dataclass(o))
 
 
 def to_dict(config: Any) -> dict:
@@ -69,8 +102,10 @@ def from_dict(cls: type, data: dict) -> Any:
 
     Unknown keys raise ``ValueError`` naming them; missing keys keep their defaults.
     """
+    if not isinstance(data, dict):
+        raise ValueError(f"{cls.__name__}: expected a config object, got {type(data).__name__}")
     if _TYPE in data:
-        cls = _resolve(data[_TYPE])
+        cls = _resolve(data[_TYPE], (cls,))
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls) if f.init}
     unknown = set(data) - names - {_TYPE}
@@ -82,12 +117,25 @@ def from_dict(cls: type, data: dict) -> Any:
             continue
         hint = hints[name]
         if isinstance(value, dict) and _TYPE in value:
-            kwargs[name] = from_dict(_resolve(value[_TYPE]), value)
+            kwargs[name] = from_dict(_resolve(value[_TYPE], _config_bases(hint)), value)
         elif isinstance(value, list) and typing.get_origin(hint) is tuple:
             kwargs[name] = tuple(value)
         else:
             kwargs[name] = value
     return cls(**kwargs)
+
+
+def config_changes(saved: dict, current: dict, ignore: tuple[str, ...] = (), prefix: str = "") -> list[str]:
+    """Dotted names of the fields that differ between two :func:`to_dict` configs, ``ignore`` aside."""
+    out = []
+    for key in sorted(set(saved) | set(current)):
+        name = f"{prefix}{key}"
+        a, b = saved.get(key), current.get(key)
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += config_changes(a, b, ignore, f"{name}.")
+        elif a != b and name not in ignore:
+            out.append(name)
+    return out
 
 
 # -- dotted field access (recipes) -------------------------------------------------------------------

@@ -27,12 +27,14 @@ from tqdm.auto import tqdm
 from moegs.data.scene import Scene, View
 from moegs.experts.base import Expert, ParamGroup
 from moegs.io import save_checkpoint, to_dict, write_json
+from moegs.io.config import config_changes
 from moegs.moe.config import RouterConfig
 from moegs.moe.model import ROUTER_CHECKPOINT, MoEGS, _check_experts, read_router, winner_shares
 from moegs.train.evaluate import eval_views, mean_scores, score_image
 from moegs.train.losses import photometric
 from moegs.train.optim import Optimizers
 from moegs.train.sampler import ViewSampler
+from moegs.train.stopping import raise_if_stopped, stop_requests
 
 RADAM_EPS = 1e-8
 """The code builds ``torch.optim.RAdam(..., lr=0.001)`` with torch's default eps (kept with Adam too)."""
@@ -129,64 +131,71 @@ def train_router(
     sampler = ViewSampler([0] * len(scene.train), 1, config.seed)
     out = Path(out_dir) if out_dir is not None else None
     ckpt = out / ROUTER_CHECKPOINT if out is not None else None
-    done, history, resumed_from = 0, [], None
-    if resume and ckpt is not None and ckpt.is_file():
-        state = read_router(ckpt)
-        _check_experts(state, experts, ckpt)
-        if state["config"] != to_dict(config):
-            raise ValueError(
-                f"{ckpt} was written with another router config; use a new out_dir or resume=False"
+    with stop_requests(out is not None) as stop:  # SIGINT/SIGTERM: checkpoint, then stop
+        done, history, resumed_from = 0, [], None
+        if resume and ckpt is not None and ckpt.is_file():
+            state = read_router(ckpt)
+            _check_experts(state, experts, ckpt)
+            changed = config_changes(state["config"], to_dict(config), ("checkpoint_every",))
+            if changed:
+                raise ValueError(
+                    f"{ckpt} was written with another router config (changed: {', '.join(changed[:6])}); "
+                    "use a new out_dir or resume=False"
+                )
+            model.router.load_state_dict(state["router"])
+            optimizers.load_state_dict(state["optimizers"])
+            sampler.load_state_dict(state["sampler"])
+            torch.set_rng_state(state["rng"]["torch"])
+            done = resumed_from = state["step"]
+            history = list(state["history"])
+        if out is not None:
+            write_json(
+                out / "config.json",
+                {
+                    "router": to_dict(config),
+                    "experts": [e.name for e in experts],
+                    "scene": scene.name,
+                    "stand_in": scene.stand_in,
+                },
             )
-        model.router.load_state_dict(state["router"])
-        optimizers.load_state_dict(state["optimizers"])
-        sampler.load_state_dict(state["sampler"])
-        torch.set_rng_state(state["rng"]["torch"])
-        done = resumed_from = state["step"]
-        history = list(state["history"])
-    if out is not None:
-        write_json(
-            out / "config.json",
-            {
-                "router": to_dict(config),
-                "experts": [e.name for e in experts],
-                "scene": scene.name,
-                "stand_in": scene.stand_in,
-            },
-        )
 
-    last = config.iterations if stop_after is None else min(stop_after, config.iterations)
-    names = "+".join(e.name for e in experts)
-    bar = tqdm(
-        range(done + 1, last + 1),
-        initial=done,
-        total=config.iterations,
-        disable=not progress,
-        desc=f"{config.variant} router over {names}",
-        dynamic_ncols=True,
-    )
-    seconds = 0.0
-    model.train()
-    for step in bar:
-        start = time.perf_counter()
-        optimizers.set_step(step)
-        view = scene.train[sampler.next()[0]]
-        rendered = model.render(view.camera, scene.background)
-        loss = photometric(rendered.image, view.image(), config.lambda_dssim)
-        if not torch.isfinite(loss):
-            raise FloatingPointError(f"router step {step}: loss of view {view.key} is {float(loss)}")
-        loss.backward()
-        optimizers.step()
-        optimizers.zero_grad()
-        history.append(float(loss.detach()))
-        done = step
-        seconds += time.perf_counter() - start
-        if step % 10 == 0:
-            bar.set_postfix(loss=f"{history[-1]:.4f}")
-        if ckpt is not None and config.checkpoint_every and step % config.checkpoint_every == 0:
-            save_checkpoint(ckpt, _state(model, step, optimizers, sampler, history))
-    bar.close()
-    if ckpt is not None:
-        save_checkpoint(ckpt, _state(model, done, optimizers, sampler, history))
+        last = config.iterations if stop_after is None else min(stop_after, config.iterations)
+        names = "+".join(e.name for e in experts)
+        bar = tqdm(
+            range(done + 1, last + 1),
+            initial=done,
+            total=config.iterations,
+            disable=not progress,
+            desc=f"{config.variant} router over {names}",
+            dynamic_ncols=True,
+        )
+        seconds = 0.0
+        model.train()
+        for step in bar:
+            if stop["signal"] is not None:
+                break
+            start = time.perf_counter()
+            optimizers.set_step(step)
+            view = scene.train[sampler.next()[0]]
+            rendered = model.render(view.camera, scene.background)
+            loss = photometric(rendered.image, view.image(), config.lambda_dssim)
+            if not torch.isfinite(loss):
+                raise FloatingPointError(f"router step {step}: loss of view {view.key} is {float(loss)}")
+            loss.backward()
+            optimizers.step()
+            optimizers.zero_grad()
+            history.append(float(loss.detach()))
+            done = step
+            seconds += time.perf_counter() - start
+            if step % 10 == 0:
+                bar.set_postfix(loss=f"{history[-1]:.4f}")
+            if ckpt is not None and config.checkpoint_every and step % config.checkpoint_every == 0:
+                save_checkpoint(ckpt, _state(model, step, optimizers, sampler, history))
+        bar.close()
+        if ckpt is not None:
+            save_checkpoint(ckpt, _state(model, done, optimizers, sampler, history))
+
+    raise_if_stopped(stop, done, config.iterations, ckpt)
 
     model.eval()
     completed = done >= config.iterations

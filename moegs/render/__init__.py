@@ -91,6 +91,7 @@ def _check_frame(frame: GaussianFrame, camera: Camera, what: str) -> None:
         raise ValueError(
             f"{what} is on {frame.device} but the camera is on {camera.device}; move one with .to(device)"
         )
+    frame.check_values(what)
     frame.check_finite(what)
 
 

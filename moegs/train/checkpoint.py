@@ -3,7 +3,7 @@
 A checkpoint (``moegs.io.save_checkpoint`` file) holds::
 
     step, expert {name, config}, model (expert.state_dict()), optimizers, strategy_state,
-    sampler, rng {torch}, history (loss per step)
+    sampler, rng {torch}, history (loss per step), seconds (training time so far)
 """
 
 from __future__ import annotations
@@ -24,9 +24,16 @@ FORMAT = 1
 
 
 def training_state(
-    expert: Expert, step: int, optimizers: dict, strategy_state: dict, sampler: dict, history: list[float]
+    expert: Expert,
+    step: int,
+    optimizers: dict,
+    strategy_state: dict,
+    sampler: dict,
+    history: list[float],
+    seconds: float = 0.0,
 ) -> dict[str, Any]:
-    """The state tree saved by the training loop after iteration ``step``."""
+    """The state tree saved by the training loop after iteration ``step`` (``seconds``: training time so
+    far, so that a resumed run reports the whole run's time)."""
     return {
         "format": FORMAT,
         "step": step,
@@ -37,6 +44,7 @@ def training_state(
         "sampler": sampler,
         "rng": {"torch": torch.get_rng_state()},
         "history": list(history),
+        "seconds": float(seconds),
     }
 
 
@@ -60,8 +68,9 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     return state
 
 
-def load_expert(path: str | Path, scene: Scene) -> tuple[Expert, dict[str, Any]]:
-    """Rebuild the trained expert saved at ``path`` (a checkpoint file or its run folder) for ``scene``.
+def load_expert(path: str | Path, scene: Scene, expect: str | None = None) -> tuple[Expert, dict[str, Any]]:
+    """Rebuild the trained expert saved at ``path`` (a checkpoint file or its run folder) for ``scene``;
+    with ``expect``, a checkpoint of another expert is refused (``ValueError`` naming both).
 
     Returns:
         the expert in eval mode (stage and SH degree of its last step) and the checkpoint state.
@@ -70,7 +79,10 @@ def load_expert(path: str | Path, scene: Scene) -> tuple[Expert, dict[str, Any]]
     if path.is_dir():
         path = path / CHECKPOINT_NAME
     state = read_checkpoint(path)
-    cls = get_expert_class(state["expert"]["name"])
+    name = state["expert"]["name"]
+    if expect is not None and name != expect:
+        raise ValueError(f"{path} holds a {name!r} checkpoint, but its run says {expect!r}")
+    cls = get_expert_class(name)
     config = from_dict(cls.config_class, state["expert"]["config"])
     expert = cls.from_scene(scene, config)
     restore_model(expert, state["model"])

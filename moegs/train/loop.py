@@ -32,6 +32,7 @@ from tqdm.auto import tqdm
 from moegs.data.scene import Scene, View
 from moegs.experts.base import Expert
 from moegs.io import save_checkpoint, to_dict, write_json
+from moegs.io.config import config_changes
 from moegs.train.checkpoint import CHECKPOINT_NAME, read_checkpoint, restore_model, training_state
 from moegs.train.config import TrainConfig
 from moegs.train.evaluate import eval_views, evaluate, render_view
@@ -39,9 +40,14 @@ from moegs.train.losses import photometric
 from moegs.train.memory import keep_freed_memory
 from moegs.train.optim import Optimizers
 from moegs.train.sampler import ViewSampler
+from moegs.train.stopping import raise_if_stopped, stop_requests
 
 ViewLoss = Callable[[View, torch.Tensor, torch.Tensor, float], torch.Tensor]
 """``(view, rgb [H, W, 3], target [H, W, 3], lambda_dssim) -> loss`` (see ``train(loss=...)``)."""
+
+
+RUN_ONLY_FIELDS = ("train.checkpoint_every", "train.eval_every", "train.log_every")
+"""Config fields that do not change what a run computes: a checkpoint resumes under other values."""
 
 
 class NonFiniteError(FloatingPointError):
@@ -77,6 +83,7 @@ class _Run:
         groups = expert.view_groups(scene.train) or [0] * len(scene.train)
         self.sampler = ViewSampler(groups, config.batch_size, config.seed)
         self.step = 0
+        self.seconds = 0.0
         self.history: list[float] = []
         self.saved_step: int | None = None
         self.last_good = "No checkpoint was written yet."
@@ -95,6 +102,7 @@ class _Run:
                 self.strategy_state,
                 self.sampler.state_dict(),
                 self.history,
+                self.seconds,
             ),
         )
         self.saved_step = self.step
@@ -104,8 +112,12 @@ class _Run:
         state = read_checkpoint(path)
         if state["expert"]["name"] != self.expert.name:
             raise ValueError(f"{path} holds a {state['expert']['name']!r} run, not {self.expert.name!r}")
-        if state["expert"]["config"] != to_dict(self.expert.config):
-            raise ValueError(f"{path} was written with another config; use a new out_dir or resume=False")
+        changed = config_changes(state["expert"]["config"], to_dict(self.expert.config), RUN_ONLY_FIELDS)
+        if changed:
+            raise ValueError(
+                f"{path} was written with another config (changed: {', '.join(changed[:6])}); "
+                "use a new out_dir or resume=False (moegs train --no-resume)"
+            )
         restore_model(self.expert, state["model"])
         self.step = state["step"]
         self.expert.on_step(self.step)  # replays the stage of the last finished step
@@ -115,6 +127,7 @@ class _Run:
         self.sampler.load_state_dict(state["sampler"])
         torch.set_rng_state(state["rng"]["torch"])
         self.history = list(state["history"])
+        self.seconds = float(state.get("seconds", 0.0))
         self.saved_step = self.step
         self.last_good = f"Last good checkpoint: {path} (step {self.step})."
 
@@ -221,59 +234,68 @@ def train(
     keep_freed_memory()  # no page faults for the buffers every step allocates again
     out = Path(out_dir) if out_dir is not None else None
     ckpt = out / CHECKPOINT_NAME if out is not None else None
-    run = _Run(expert, scene, config, loss)
-    torch.manual_seed(config.seed)
-    resumed_from = None
-    if resume and ckpt is not None and ckpt.is_file():
-        run.resume(ckpt)
-        resumed_from = run.step
-    if out is not None:
-        write_json(
-            out / "config.json",
-            {
-                "expert": expert.name,
-                "scene": scene.name,
-                "stand_in": scene.stand_in,
-                "config": to_dict(expert.config),
-                "train": to_dict(config),
-                "recipe": recipe,
-            },
-        )
-
-    last = config.iterations if stop_after is None else min(stop_after, config.iterations)
-    test_views = eval_views(scene.test, config.max_eval_views)
-    evaluations, seconds = [], 0.0
-    expert.train()
-    bar = tqdm(
-        range(run.step + 1, last + 1),
-        initial=run.step,
-        total=config.iterations,
-        disable=not progress,
-        desc=f"{expert.name} on {scene.name}",
-        dynamic_ncols=True,
-    )
-    for step in bar:
-        start = time.perf_counter()
-        run.history.append(run.iteration(step))
-        run.step = step
-        seconds += time.perf_counter() - start
-        if step % config.log_every == 0:
-            bar.set_postfix(loss=f"{run.history[-1]:.4f}", gaussians=expert.num_gaussians)
-        if ckpt is not None and config.checkpoint_every and step % config.checkpoint_every == 0:
-            run.save(ckpt)
-        if config.eval_every and step % config.eval_every == 0 and step < config.iterations and test_views:
-            evaluations.append(
+    with stop_requests(out is not None) as stop:  # a signal during set-up stops before step 1
+        run = _Run(expert, scene, config, loss)
+        torch.manual_seed(config.seed)
+        resumed_from = None
+        if resume and ckpt is not None and ckpt.is_file():
+            run.resume(ckpt)
+            resumed_from = run.step
+        if out is not None:
+            write_json(
+                out / "config.json",
                 {
-                    "step": step,
-                    "psnr": evaluate(
-                        expert, test_views, scene.background, config.metric_profile, config.backend
-                    )["psnr"],
-                }
+                    "expert": expert.name,
+                    "scene": scene.name,
+                    "stand_in": scene.stand_in,
+                    "config": to_dict(expert.config),
+                    "train": to_dict(config),
+                    "recipe": recipe,
+                },
             )
-            expert.train()
-    bar.close()
-    if ckpt is not None and run.saved_step != run.step:
-        run.save(ckpt)
+
+        last = config.iterations if stop_after is None else min(stop_after, config.iterations)
+        test_views = eval_views(scene.test, config.max_eval_views)
+        evaluations, start_seconds = [], run.seconds
+        expert.train()
+        bar = tqdm(
+            range(run.step + 1, last + 1),
+            initial=run.step,
+            total=config.iterations,
+            disable=not progress,
+            desc=f"{expert.name} on {scene.name}",
+            dynamic_ncols=True,
+        )
+        for step in bar:
+            if stop["signal"] is not None:
+                break
+            start = time.perf_counter()
+            run.history.append(run.iteration(step))
+            run.step = step
+            run.seconds += time.perf_counter() - start
+            if step % config.log_every == 0:
+                bar.set_postfix(loss=f"{run.history[-1]:.4f}", gaussians=expert.num_gaussians)
+            if ckpt is not None and config.checkpoint_every and step % config.checkpoint_every == 0:
+                run.save(ckpt)
+            if (
+                config.eval_every
+                and step % config.eval_every == 0
+                and step < config.iterations
+                and test_views
+            ):
+                evaluations.append(
+                    {
+                        "step": step,
+                        "psnr": evaluate(
+                            expert, test_views, scene.background, config.metric_profile, config.backend
+                        )["psnr"],
+                    }
+                )
+                expert.train()
+        bar.close()
+        if ckpt is not None and run.saved_step != run.step:
+            run.save(ckpt)
+    raise_if_stopped(stop, run.step, config.iterations, ckpt)
 
     completed = run.step >= config.iterations
     expert.eval()
@@ -289,8 +311,8 @@ def train(
         "step": run.step,
         "iterations": config.iterations,
         "num_gaussians": expert.num_gaussians,
-        "train_seconds": seconds,
-        "seconds_per_step": seconds / steps_run if steps_run > 0 else None,
+        "train_seconds": run.seconds,
+        "seconds_per_step": (run.seconds - start_seconds) / steps_run if steps_run > 0 else None,
         "final_loss": run.history[-1] if run.history else None,
         "resumed_from": resumed_from,
         "test": test,

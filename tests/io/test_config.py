@@ -38,3 +38,28 @@ def test_presets_are_named():
         ValueError, match="unknown preset 'fast' for StaticConfig; valid presets: paper, quick"
     ):
         StaticConfig.from_preset("fast")
+
+
+@pytest.mark.parametrize(
+    ("where", "type_name", "message"),
+    [
+        ("top", "os:system", "config _type 'os:system' is not StaticConfig or a moegs subclass of it"),
+        ("top", "this:s", "config _type 'this:s' is not StaticConfig"),  # importing `this` prints
+        ("top", "moegs.moe.config:RouterConfig", "is not StaticConfig or a moegs subclass of it"),
+        ("strategy", "subprocess:Popen", "'subprocess:Popen' is not Strategy or a moegs subclass of it"),
+        ("strategy", "moegs.experts.static:StaticConfig", "is not Strategy or a moegs subclass of it"),
+        ("strategy", "moegs.nosuch:Thing", "'moegs.nosuch:Thing' is not Strategy"),
+        ("strategy", 7, "config _type must be a 'module:Class' string, got 7"),
+    ],
+)
+def test_only_registered_moegs_config_types_load(where, type_name, message):
+    """A crafted checkpoint cannot make loading import or build anything but a moegs config class."""
+    import sys
+
+    data = to_dict(StaticConfig())
+    (data if where == "top" else data[where])["_type"] = type_name
+    module = str(type_name).partition(":")[0]
+    imported = module in sys.modules
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        from_dict(StaticConfig, data)
+    assert (module in sys.modules) == imported or module.startswith("moegs")

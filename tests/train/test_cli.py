@@ -28,6 +28,29 @@ def test_unknown_expert_lists_valid_names(capsys):
     assert "unknown expert 'nope'; registered experts:" in err and "mcmc" in err and "static" in err
 
 
+def test_recipe_shows_how_a_config_is_made(capsys):
+    assert main(["recipe", "--expert", "grid4d", "--scene", "dnerf:lego"]) == 0
+    out = capsys.readouterr().out
+    assert "dnerf preset 'paper-dnerf'" in out and "grid_lr_scale=250.0" in out and "background: black" in out
+    assert (
+        main(
+            [
+                "recipe",
+                "--expert",
+                "ed3dgs",
+                "--scene",
+                "synthetic:n3v_like",
+                "--dataset",
+                "technicolor",
+                "--json",
+            ]
+        )
+        == 0
+    )
+    record = json.loads(capsys.readouterr().out)
+    assert record["recipe"]["base"] == "paper-technicolor" and record["config"]["min_embeddings"] == 5
+
+
 @pytest.mark.slow
 def test_train_eval_render_export(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("MOEGS_CACHE", str(tmp_path / "cache"))
@@ -55,7 +78,10 @@ def test_train_eval_render_export(tmp_path, monkeypatch, capsys):
     )
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["completed"] and metrics["step"] == 4 and metrics["stand_in"]
-    assert json.loads((run / "config.json").read_text())["train"]["seed"] == 1
+    config = json.loads((run / "config.json").read_text())
+    assert config["train"]["seed"] == 1 and config["train"]["resolution_scale"] == 0.4
+    assert config["recipe"]["base"] == "paper" and config["recipe"]["preset"] == "quick"
+    assert config["recipe"]["overrides"]["train.iterations"] == 4
 
     assert main(["eval", str(run), "--profile", "clean"]) == 0
     assert json.loads((run / "eval-clean.json").read_text())["psnr"] == pytest.approx(

@@ -1,0 +1,209 @@
+"""``moegs train`` as a user runs it: seeded runs repeat, Ctrl-C and kill -9 resume to the same result, a
+finished run is left alone, and bad arguments fail before any work."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from moegs.cli import main
+from moegs.experts import list_experts
+
+SCENE = "synthetic:dnerf_like"
+SMALL = ["--scene", SCENE, "--resolution-scale", "0.4", "--quiet"]
+
+
+def train(out: Path, *extra: str, expert: str = "static") -> int:
+    return main(["train", "--expert", expert, *SMALL, "--out", str(out), *extra])
+
+
+def metrics(out: Path) -> dict:
+    return json.loads((out / "metrics.json").read_text())
+
+
+def same_result(a: Path, b: Path) -> None:
+    ma, mb = metrics(a), metrics(b)
+    assert ma["completed"] and mb["completed"]
+    assert ma["num_gaussians"] == mb["num_gaussians"] and ma["final_loss"] == mb["final_loss"]
+    assert ma["test"]["psnr"] == mb["test"]["psnr"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("expert", [s.name for s in list_experts() if not s.composite])
+def test_seeded_runs_repeat(expert, tmp_path):
+    """The seed reaches network initialisation: two runs with ``--seed 3`` are identical."""
+    for name in ("a", "b"):
+        assert train(tmp_path / name, "--iterations", "12", "--seed", "3", expert=expert) == 0
+    same_result(tmp_path / "a", tmp_path / "b")
+
+
+def test_finished_run_is_left_alone_unless_forced(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert train(out, "--iterations", "6") == 0
+    first = metrics(out)
+    capsys.readouterr()
+    assert train(out, "--iterations", "6") == 0
+    assert "holds a finished run" in capsys.readouterr().out and metrics(out) == first
+    assert train(out, "--iterations", "6", "--force") == 0
+    again = metrics(out)
+    assert again["test"]["psnr"] == first["test"]["psnr"] and again["train_seconds"] > 0
+
+
+def _start(out: Path, iterations: int, every: int) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "moegs.cli", "train", "--expert", "static", *SMALL, "--out", str(out)]
+    cmd += ["--iterations", str(iterations), "--checkpoint-every", str(every)]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}  # the "recipe:" line arrives when it is printed
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+
+def _wait_for_checkpoint(proc: subprocess.Popen, out: Path) -> None:
+    deadline = time.monotonic() + 300
+    while not (out / "checkpoint.safetensors").is_file():
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "no checkpoint written"
+        time.sleep(0.2)
+
+
+@pytest.mark.slow
+def test_ctrl_c_saves_and_kill_9_resumes_to_the_same_result(tmp_path):
+    iterations = "800"
+    reference = tmp_path / "reference"
+    assert train(reference, "--iterations", iterations) == 0
+
+    interrupted = tmp_path / "sigint"
+    proc = _start(interrupted, int(iterations), every=10_000)
+    for line in proc.stdout:  # the recipe line is printed just before training starts
+        if line.startswith("recipe:"):
+            break
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 130, err
+    assert "interrupted: SIGINT after step" in err and "Traceback" not in err
+    assert (interrupted / "checkpoint.safetensors").is_file() and not (interrupted / "metrics.json").exists()
+    assert train(interrupted, "--iterations", iterations) == 0  # the same command resumes
+    same_result(reference, interrupted)
+
+    killed = tmp_path / "kill9"
+    proc = _start(killed, int(iterations), every=50)
+    _wait_for_checkpoint(proc, killed)
+    proc.kill()
+    proc.communicate(timeout=60)
+    assert not (killed / "metrics.json").exists()
+    assert train(killed, "--iterations", iterations, "--checkpoint-every", "50") == 0
+    same_result(reference, killed)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["render", "run", "--fps", "0"], "--fps: expected a positive integer, got 0"),
+        (["export", "run", "--time", "7.5"], "--time: expected a time in [0, 1], got '7.5'"),
+        (["export", "run", "--time", "nan"], "--time: expected a time in [0, 1], got 'nan'"),
+        (
+            ["route", "--experts", "static,mcmc", "--scene", SCENE, "--router", "nosuch"],
+            "invalid choice: 'nosuch'",
+        ),
+        (
+            ["route", "--experts", "static,mcmc", "--scene", SCENE, "--iterations", "0"],
+            "expected a positive integer",
+        ),
+        (
+            ["train", "--expert", "static", "--scene", SCENE, "--checkpoint-every", "0"],
+            "expected a positive integer",
+        ),
+    ],
+)
+def test_arguments_are_checked_before_any_work(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_route_needs_two_known_experts_before_training(tmp_path, capsys):
+    assert main(["route", "--experts", "static", "--scene", SCENE, "--out", str(tmp_path)]) == 2
+    assert "at least two different experts" in capsys.readouterr().err
+    assert main(["route", "--experts", "static,nosuch", "--scene", SCENE, "--out", str(tmp_path)]) == 2
+    assert "unknown expert 'nosuch'" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())  # nothing was trained
+
+
+ROUTE_EXPERTS = ("static", "mcmc")
+
+
+@pytest.fixture(scope="module")
+def route_experts(tmp_path_factory) -> Path:
+    """Two short finished expert runs that ``moegs route`` reuses as its stage 1."""
+    base = tmp_path_factory.mktemp("route_experts")
+    for name in ROUTE_EXPERTS:
+        argv = ["train", "--expert", name, "--scene", SCENE, "--iterations", "30", "--quiet"]
+        assert main([*argv, "--out", str(base / name)]) == 0
+    return base
+
+
+def _route_folder(experts: Path, out: Path) -> Path:
+    import shutil
+
+    for name in ROUTE_EXPERTS:
+        shutil.copytree(experts / name, out / name)
+    return out
+
+
+def _route_cmd(out: Path, every: int) -> list[str]:
+    cmd = [sys.executable, "-m", "moegs.cli", "route", "--experts", ",".join(ROUTE_EXPERTS), "--scene", SCENE]
+    return cmd + [
+        "--out",
+        str(out),
+        "--iterations",
+        "120",
+        "--checkpoint-every",
+        str(every),
+        "--gate-views",
+        "0",
+    ]
+
+
+def _router_metrics(out: Path) -> dict:
+    return json.loads((out / "router_vapr" / "metrics.json").read_text())
+
+
+@pytest.mark.slow
+def test_route_ctrl_c_and_kill_9_resume_to_the_same_result(route_experts, tmp_path):
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    reference = _route_folder(route_experts, tmp_path / "reference")
+    done = subprocess.run(_route_cmd(reference, 50), capture_output=True, text=True, env=env, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    expected = _router_metrics(reference)["test"]
+
+    for how in ("ctrl-c", "kill-9"):
+        out = _route_folder(route_experts, tmp_path / how)
+        ckpt = out / "router_vapr" / "router.safetensors"
+        proc = subprocess.Popen(
+            _route_cmd(out, 10), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+        )
+        deadline = time.monotonic() + 300
+        while not ckpt.is_file():
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "no router checkpoint written"
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT if how == "ctrl-c" else signal.SIGKILL)
+        _, err = proc.communicate(timeout=300)
+        if how == "ctrl-c":
+            assert proc.returncode == 130, err
+            assert "moegs route: interrupted: SIGINT after step" in err and "Traceback" not in err
+        assert not (out / "router_vapr" / "metrics.json").exists()
+        again = subprocess.run(_route_cmd(out, 10), capture_output=True, text=True, env=env, timeout=600)
+        assert again.returncode == 0, again.stderr[-2000:]
+        assert _router_metrics(out)["test"]["psnr"] == expected["psnr"], how
+
+    finished = _router_metrics(reference)
+    rerun = subprocess.run(_route_cmd(reference, 50), capture_output=True, text=True, env=env, timeout=600)
+    assert rerun.returncode == 0 and "holds a finished router run" in rerun.stdout
+    assert _router_metrics(reference) == finished  # left alone
