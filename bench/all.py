@@ -2,8 +2,15 @@
 
 Steps: plan the selected specs (rows x scenes x seeds), build the missing artefacts and evaluate the
 missing cells (local process pool or Slurm via submitit; finished work is reused), then write
-``tables/<id>.tex``, ``reports/figures/*.png`` for the selected specs and ``reports/REPORT.{md,html}``
-plus ``reports/summary.json`` for every spec (those not run show as pending).
+``tables/<id>.tex``, ``reports/figures/*.png``, ``reports/REPORT.{md,html}`` and
+``reports/summary.json``.
+
+A run of every spec writes those under ``--out``. A subset run (``--tables 3,17``) writes the same
+files for its specs only under ``reports/subsets/<ids>/`` and leaves the full report and tables as
+they are, so the committed outputs always come from one complete run.
+
+Datasets without real data under ``MOEGS_DATA`` run on synthetic stand-ins; the run says so in one line
+at the start, and ``--require-real`` makes it an error instead.
 
 ``--tables`` accepts ``tab03``, ``3``, ``III``, ``repro-tab3`` (tox env names) and figure ids;
 ``python -m bench.tab03`` is the same as ``--tables tab03``. The preset is ``--preset`` / ``--quick``,
@@ -18,7 +25,6 @@ import sys
 import time
 from pathlib import Path
 
-from bench.keys import REPO
 from bench.presets import PRESET_ENV, PRESETS, default_preset, get_preset
 from bench.registry import get_spec, list_specs, parse_selection
 
@@ -61,8 +67,18 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="results, checkpoints and logs (default: $MOEGS_BENCH_DIR or runs/bench)",
     )
-    p.add_argument("--out", type=Path, default=REPO, help="where tables/ and reports/ go (default: the repo)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path.cwd(),
+        help="where tables/ and reports/ go (default: the working directory, i.e. the repository root)",
+    )
     p.add_argument("--no-run", action="store_true", help="only rebuild tables, plots and report from results")
+    p.add_argument(
+        "--require-real",
+        action="store_true",
+        help="fail (before any work) when a selected table would run on a synthetic stand-in",
+    )
     p.add_argument("--list", action="store_true", help="list the specs and exit (no torch import)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--slurm-partition", default=None)
@@ -151,13 +167,20 @@ def main(argv: list[str] | None = None) -> int:
     from dataclasses import fields
 
     from bench.plan import make_plan
-    from bench.runner import execute
     from bench.store import Workspace
 
     workspace = Workspace(args.workspace)
     start = time.perf_counter()
     plan = make_plan(list_specs(), preset)
     run_plan = type(plan)(preset, [sp for sp in plan.specs if sp.spec.id in selected])
+    stand_ins = data_line(run_plan)
+    if stand_ins:
+        print(f"[bench] {stand_ins}", file=sys.stderr)
+        if args.require_real:
+            print("[bench] error: --require-real and real data is missing (see above)", file=sys.stderr)
+            return 2
+    subset = set(selected) != set(list_specs())
+    out = args.out / "reports" / "subsets" / "-".join(selected) if subset else args.out
     n_eval = len(run_plan.eval_tasks())
     n_build = sum(len(level) for level in run_plan.build_levels())
     print(
@@ -167,14 +190,23 @@ def main(argv: list[str] | None = None) -> int:
     )
     run = None
     if not args.no_run:
-        summary = execute(run_plan, workspace, _executor(args), progress=not args.no_progress)
+        try:
+            summary = execute_interruptibly(run_plan, workspace, _executor(args), not args.no_progress)
+        except KeyboardInterrupt:
+            print(
+                "[bench] interrupted: finished cells and training checkpoints are kept; run the same "
+                "command again to resume",
+                file=sys.stderr,
+            )
+            return 130
         run = {  # not asdict(summary): a failure's Task holds read-only mappings that cannot be copied
             **{f.name: getattr(summary, f.name) for f in fields(summary) if f.name != "failures"},
-            "failures": [
-                {"task": o.task.slug, "log": str(o.log), "error": o.error} for o in summary.failures
+            "failures": [  # logs relative to the workspace: no machine's absolute paths in outputs
+                {"task": o.task.slug, "log": os.path.relpath(o.log, workspace.root), "error": o.error}
+                for o in summary.failures
             ],
         }
-    outputs = write_outputs(plan, workspace, selected, args.out, run)
+    outputs = write_outputs(run_plan if subset else plan, workspace, selected, out, run)
     elapsed = time.perf_counter() - start
     _print_summary(outputs["reports"], selected, outputs["paths"], elapsed)
     if run and run["failures"]:
@@ -184,6 +216,38 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 1
     return 0
+
+
+def execute_interruptibly(plan, workspace, executor, progress: bool):
+    """``bench.runner.execute`` with SIGTERM handled like Ctrl-C (``KeyboardInterrupt``)."""
+    import signal
+
+    from bench.runner import execute
+
+    def stop(_signum, _frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        return execute(plan, workspace, executor, progress=progress)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def data_root_text() -> str:
+    from moegs.paths import data_root
+
+    root = data_root()
+    return f"MOEGS_DATA={root}" if root is not None else "no MOEGS_DATA (and no ../shared/data)"
+
+
+def data_line(plan) -> str:
+    """One line naming the datasets of ``plan`` that run on synthetic stand-ins ('' when none does)."""
+    missing = sorted({f"{sp.spec.dataset} -> {s.name}" for sp in plan.specs for s in sp.scenes if not s.real})
+    if not missing:
+        return ""
+    where = data_root_text()
+    return f"no real data for {len(missing)} dataset(s) under {where}: stand-ins {', '.join(missing)}"
 
 
 def _print_summary(reports, selected, paths, elapsed: float) -> None:

@@ -60,7 +60,7 @@ class Context:
             self.artifact(dep)
         if not self.workspace.is_built(task):
             self.log(f"building {task.slug} ({task.key})")
-        folder = self.workspace.ensure(task, lambda out: module.build(task, self, out))
+        folder = self.workspace.ensure(task, lambda out: module.build(task, self, out), warn=self.log)
         meta = self.workspace.artifact_meta(task)
         config_file = folder / "config.json"  # written by moegs.train.loop.train: expert + training config
         config = json.loads(config_file.read_text()) if config_file.is_file() else None

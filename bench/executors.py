@@ -12,8 +12,10 @@ task is reported with its log path and never stops the others.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -58,6 +60,8 @@ class LocalExecutor:
         self.jobs = jobs
         self.threads = threads or max(1, (os.cpu_count() or 1) // jobs)
         self.timeout = timeout
+        self._running: set[subprocess.Popen] = set()
+        self._lock = threading.Lock()
 
     def _one(self, task: Task, workspace: Workspace) -> Outcome:
         job = write_job(workspace, task, self.threads)
@@ -71,18 +75,24 @@ class LocalExecutor:
         }
         start = time.perf_counter()
         with open(log, "w") as fh:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "bench.worker", str(job)],
+                stdout=fh,
+                stderr=subprocess.STDOUT,
+                env=env,
+                cwd=REPO,
+            )
+            with self._lock:
+                self._running.add(proc)
             try:
-                proc = subprocess.run(
-                    [sys.executable, "-m", "bench.worker", str(job)],
-                    stdout=fh,
-                    stderr=subprocess.STDOUT,
-                    env=env,
-                    cwd=REPO,
-                    timeout=self.timeout,
-                )
-                code = proc.returncode
+                code = proc.wait(timeout=self.timeout)
             except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
                 code = None
+            finally:
+                with self._lock:
+                    self._running.discard(proc)
         seconds = time.perf_counter() - start
         if code == 0:
             return Outcome(task, True, log, seconds)
@@ -90,14 +100,25 @@ class LocalExecutor:
         return Outcome(task, False, log, seconds, f"{why}: {_tail(log)}")
 
     def run(self, tasks: list[Task], workspace: Workspace, progress: Progress | None = None) -> list[Outcome]:
+        """Run ``tasks``; on Ctrl-C the queued ones are dropped and the running workers get SIGINT (a
+        training worker writes its checkpoint first), then ``KeyboardInterrupt`` goes on."""
         outcomes = []
-        with ThreadPoolExecutor(max_workers=self.jobs) as pool:
+        pool = ThreadPoolExecutor(max_workers=self.jobs)
+        try:
             futures = [pool.submit(self._one, t, workspace) for t in tasks]
             for fut in as_completed(futures):
                 outcome = fut.result()
                 outcomes.append(outcome)
                 if progress:
                     progress(outcome)
+        except KeyboardInterrupt:
+            pool.shutdown(wait=False, cancel_futures=True)
+            with self._lock:
+                for proc in self._running:
+                    proc.send_signal(signal.SIGINT)
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
         return outcomes
 
 

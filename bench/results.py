@@ -22,10 +22,13 @@ One file per evaluated cell (``Workspace.result_path``). Fields::
     log           path of the task's log
     error         (failed only) exception text and traceback
     created       ISO time
+    content_sha256  sha256 of the canonical JSON of every other field: a file edited by hand (or
+                  damaged) is refused and the cell recomputed
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import time
@@ -35,7 +38,8 @@ from typing import Any
 from bench.tasks import Task
 
 SCHEMA = "moegs.bench.result/1"
-REQUIRED = ("schema", "status", "key", "task", "metrics", "versions", "timings")
+REQUIRED = ("schema", "status", "key", "task", "metrics", "versions", "timings", "content_sha256")
+HASH_FIELD = "content_sha256"
 
 
 class ResultError(ValueError):
@@ -48,6 +52,19 @@ def write_json_atomic(path: Path, payload: dict[str, Any]) -> None:
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     tmp.write_text(json.dumps(payload, indent=1, sort_keys=True, default=str) + "\n", encoding="utf-8")
     os.replace(tmp, path)
+
+
+def content_hash(payload: dict[str, Any]) -> str:
+    """sha256 of ``payload``'s canonical JSON, its ``content_sha256`` field left out."""
+    body = {k: v for k, v in payload.items() if k != HASH_FIELD}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), default=str, allow_nan=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def write_result(path: Path, payload: dict[str, Any]) -> None:
+    """Write one cell's result atomically with its ``content_sha256``."""
+    payload = json.loads(json.dumps(payload, default=str))  # what the file will hold, hashed as read back
+    write_json_atomic(path, {**payload, HASH_FIELD: content_hash(payload)})
 
 
 def read_result(path: Path) -> dict[str, Any]:
@@ -71,6 +88,8 @@ def read_result(path: Path) -> dict[str, Any]:
         raise ResultError(f"{path}: key {data['key']!r} does not match the file name")
     if not isinstance(data["metrics"], dict):
         raise ResultError(f"{path}: 'metrics' must be an object")
+    if data[HASH_FIELD] != content_hash(data):
+        raise ResultError(f"{path}: content does not match its content_sha256 (edited or damaged)")
     return data
 
 

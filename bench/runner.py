@@ -17,7 +17,7 @@ from bench.cells import kind_module
 from bench.executors import LocalExecutor, Outcome, SubmititExecutor
 from bench.keys import versions
 from bench.plan import Plan
-from bench.results import SCHEMA, ResultError, load_valid, now, write_json_atomic
+from bench.results import SCHEMA, ResultError, load_valid, now, write_result
 from bench.store import Workspace
 from bench.tasks import Task
 
@@ -111,7 +111,7 @@ def execute(
         if gone:
             reason = f"dependency {gone[0].slug} failed ({dead[gone[0].key]})"
             summary.blocked[task.key] = reason
-            write_json_atomic(
+            write_result(
                 path,
                 {
                     "schema": SCHEMA,

@@ -1,6 +1,7 @@
 """Where everything a run writes lives, and the content-addressed artefact store.
 
-Layout under the workspace root (``$MOEGS_BENCH_DIR``, default ``runs/bench`` in the repository)::
+Layout under the workspace root (``$MOEGS_BENCH_DIR``, default ``runs/bench`` in the working directory,
+never in the install tree)::
 
     store/<kind>/<key>/            one artefact (checkpoint files + artifact.json + DONE)
     results/<preset>/<kind>/<key>.json        one evaluated cell
@@ -10,7 +11,9 @@ Layout under the workspace root (``$MOEGS_BENCH_DIR``, default ``runs/bench`` in
 
 Artefacts are built under a per-key file lock into a temporary folder that is renamed into place, so
 concurrent workers needing the same expert train it once and an interrupted build leaves nothing
-that looks finished.
+that looks finished. Before a finished artefact is used, each of its files is checked against the
+sha256 recorded in ``artifact.json`` when it was built (once per process); a folder that fails is moved
+aside to ``<key>.corrupt-<time>`` and built again.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from bench.keys import REPO, file_sha256
+from bench.keys import file_sha256
 from bench.tasks import Task
 
 WORKSPACE_ENV = "MOEGS_BENCH_DIR"
@@ -42,7 +45,8 @@ class Workspace:
 
     def __init__(self, root: str | Path | None = None) -> None:
         env = os.environ.get(WORKSPACE_ENV)
-        self.root = Path(root or env or REPO / "runs" / "bench").expanduser().resolve()
+        self.root = Path(root or env or Path.cwd() / "runs" / "bench").expanduser().resolve()
+        self._verified: set[str] = set()
 
     def __repr__(self) -> str:
         return f"Workspace({self.root})"
@@ -73,7 +77,48 @@ class Workspace:
 
     # ------------------------------------------------------------------ artefacts
     def is_built(self, task: Task) -> bool:
-        return (self.artifact_dir(task) / DONE).is_file()
+        """Finished and intact (every file matches its recorded sha256)."""
+        if not (self.artifact_dir(task) / DONE).is_file():
+            return False
+        try:
+            self.verify(task)
+        except ArtifactError:
+            return False
+        return True
+
+    def verify(self, task: Task) -> None:
+        """Check every file of a finished artefact against ``artifact.json``; ``ArtifactError`` names the
+        first file that is missing or differs."""
+        if task.key in self._verified:
+            return
+        folder = self.artifact_dir(task)
+        files = self.artifact_meta(task).get("files")
+        if not isinstance(files, dict):
+            raise ArtifactError(f"artefact {folder}: {META} records no file hashes")
+        for name, recorded in sorted(files.items()):
+            path = folder / name
+            if not path.is_file():
+                raise ArtifactError(f"{path}: missing (recorded in {folder / META})")
+            actual = file_sha256(path)
+            if actual != recorded:
+                raise ArtifactError(
+                    f"{path}: sha256 {actual[:12]}... differs from {recorded[:12]}... recorded at build time"
+                )
+        self._verified.add(task.key)
+
+    def _intact(self, task: Task, warn: Callable[[str], None]) -> bool:
+        """Whether a finished, intact artefact is there; a damaged one is moved aside (and ``warn`` told)."""
+        final = self.artifact_dir(task)
+        if not (final / DONE).is_file():
+            return False
+        try:
+            self.verify(task)
+            return True
+        except ArtifactError as err:
+            aside = final.with_name(f"{final.name}.corrupt-{time.strftime('%Y%m%dT%H%M%S')}")
+            final.rename(aside)
+            warn(f"WARNING damaged artefact, rebuilding: {err} (moved to {aside})")
+            return False
 
     def artifact_meta(self, task: Task) -> dict[str, Any]:
         """``artifact.json`` of a finished artefact; ``ArtifactError`` naming the folder otherwise."""
@@ -96,13 +141,15 @@ class Workspace:
             finally:
                 fcntl.flock(fh, fcntl.LOCK_UN)
 
-    def ensure(self, task: Task, build: Callable[[Path], dict[str, Any]]) -> Path:
-        """The artefact folder of ``task``, building it with ``build(tmp_dir) -> meta`` if needed."""
+    def ensure(
+        self, task: Task, build: Callable[[Path], dict[str, Any]], warn: Callable[[str], None] = print
+    ) -> Path:
+        """The artefact folder of ``task``, verified, or built with ``build(tmp_dir) -> meta``."""
         final = self.artifact_dir(task)
-        if (final / DONE).is_file():
+        if task.key in self._verified and (final / DONE).is_file():
             return final
         with self._lock(task):
-            if (final / DONE).is_file():  # built by another worker while we waited
+            if self._intact(task, warn):  # also: built by another worker while we waited
                 return final
             # one writer at a time (the lock): a stable partial folder lets a build resume its checkpoint
             tmp = final.with_name(f"{final.name}.partial")
@@ -122,4 +169,5 @@ class Workspace:
             tmp.rename(final)
             (final / DONE).write_text(time.strftime("%Y-%m-%dT%H:%M:%S%z"))
             self.failure_path(task).unlink(missing_ok=True)
+            self._verified.add(task.key)
         return final

@@ -8,6 +8,7 @@ artefact in the store (or ``<key>.failed.json``); an evaluation writes its resul
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
@@ -20,7 +21,7 @@ from bench.cells import kind_module
 from bench.cells import scene as scene_kind
 from bench.context import Context
 from bench.keys import CODE_VERSION_ENV, code_version, file_sha256, versions
-from bench.results import SCHEMA, now, write_json_atomic
+from bench.results import SCHEMA, now, write_json_atomic, write_result
 from bench.store import Workspace
 from bench.tasks import Task
 
@@ -90,6 +91,7 @@ def _evaluate(task: Task, ctx: Context, log: Path) -> dict[str, Any]:
         scene_meta = ctx.meta(scene_kind.task_for(task))
         loaded = time.perf_counter()
         payload = kind_module(task.kind).run(task, ctx)
+        check_finite_metrics(payload["metrics"])
         files_dir = ctx.workspace.files_dir(task)
         files = {name: file_sha256(files_dir / name) for name in payload.get("files", [])}
         result = {
@@ -127,10 +129,17 @@ def _evaluate(task: Task, ctx: Context, log: Path) -> dict[str, Any]:
             "timings": {"total_s": time.perf_counter() - start},
             "versions": versions(),
         }
-        write_json_atomic(ctx.workspace.result_path(task), result)
+        write_result(ctx.workspace.result_path(task), result)
         raise
-    write_json_atomic(ctx.workspace.result_path(task), result)
+    write_result(ctx.workspace.result_path(task), result)
     return result
+
+
+def check_finite_metrics(metrics: dict[str, Any]) -> None:
+    """``ValueError`` naming the metrics that are NaN or infinite (None means not applicable)."""
+    bad = {k: v for k, v in metrics.items() if isinstance(v, float) and not math.isfinite(v)}
+    if bad:
+        raise ValueError(f"non-finite metric(s) {bad}: the cell failed, no number enters a table")
 
 
 def _build(task: Task, ctx: Context, log: Path) -> dict[str, Any]:

@@ -19,7 +19,7 @@ from typing import Any
 
 from bench.cells import expert as expert_kind
 from bench.cells import mode as mode_kind
-from bench.cells._lib import expert_task, load_trained_expert
+from bench.cells._lib import expert_task, load_trained_expert, recipe_of
 from bench.tasks import Task
 
 
@@ -77,8 +77,10 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     import numpy as np
     import torch
 
-    scene = ctx.scene(task)
-    model = load_trained_expert(ctx, artifacts(task)[0])
+    build = artifacts(task)[0]
+    recipe = mode_kind.recipe(ctx, build) if "mode" in task.params else recipe_of(ctx, build)
+    scene = ctx.scene(task, recipe.background)
+    model = load_trained_expert(ctx, build, scene)
     times = torch.linspace(0.0, 1.0, max(2, ctx.preset.trajectory_steps)).tolist()
     with torch.no_grad():
         frames = [model.frame(t) for t in times]

@@ -9,7 +9,9 @@ library; until then the same pipeline runs a table of the experts that exist (3D
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -226,7 +228,9 @@ def test_cli_table_module(run):
         timeout=120,
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert (out / "tables" / "tab17.tex").is_file() and (out / "reports" / "REPORT.md").is_file()
+    subset = out / "reports" / "subsets" / "tab17"  # a subset run leaves the full report alone
+    assert (subset / "tables" / "tab17.tex").is_file() and (subset / "reports" / "REPORT.md").is_file()
+    assert not (out / "reports" / "REPORT.md").exists() and not (out / "tables").exists()
 
 
 def test_cli_reports_failed_cells(run, monkeypatch, capsys):
@@ -242,4 +246,38 @@ def test_cli_reports_failed_cells(run, monkeypatch, capsys):
     args = ["--tables", "17", "--preset", "tiny", "--workspace", str(run["ws"].root), "--out", str(out)]
     assert main([*args, "--no-progress"]) == 1
     assert "1 task(s) failed" in capsys.readouterr().err
-    assert (out / "reports" / "REPORT.md").is_file()
+    assert (out / "reports" / "subsets" / "tab17" / "reports" / "REPORT.md").is_file()
+
+
+QUALITY = ("psnr", "ssim", "lpips")
+
+
+@pytest.mark.parametrize("how", ["ctrl-c", "kill-9"])
+def test_interrupted_run_resumes_to_the_same_results(run, tmp_path, how):
+    """Ctrl-C (SIGINT to the process group, as a terminal sends it) or kill -9 in the middle of training;
+    the same command then finishes, and every cell equals the uninterrupted run's."""
+    ws = tmp_path / "ws"
+    cmd = [sys.executable, "-m", "bench.all", "--tables", "17", "--preset", "tiny", "--jobs", "2"]
+    cmd += ["--workspace", str(ws), "--out", str(tmp_path / "out"), "--no-progress"]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+    deadline = time.monotonic() + 600
+    while not any((ws / "store").glob("expert/*.partial")):  # an expert is training
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "no training started"
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT if how == "ctrl-c" else signal.SIGKILL)
+    _, err = proc.communicate(timeout=300)
+    if how == "ctrl-c":
+        assert proc.returncode == 130, err[-2000:]
+        assert "[bench] interrupted: finished cells and training checkpoints are kept" in err
+        assert "Traceback" not in err
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=1200)
+    assert again.returncode == 0, again.stderr[-2000:]
+    for slot in _ok_slots(run):
+        ours = read_result(Workspace(ws).result_path(slot.task))["metrics"]
+        reference = read_result(run["ws"].result_path(slot.task))["metrics"]
+        for name in reference:
+            if name.split("_")[0].split("/")[0] in QUALITY:
+                assert ours[name] == reference[name], (slot.task.slug, name)

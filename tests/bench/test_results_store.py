@@ -9,7 +9,7 @@ import pytest
 
 from bench.claims import FAILED, HELD, NA, better, monotone, order
 from bench.keys import code_version, digest
-from bench.results import SCHEMA, ResultError, load_valid, read_result, write_json_atomic
+from bench.results import SCHEMA, ResultError, load_valid, read_result, write_json_atomic, write_result
 from bench.store import Workspace
 from bench.tasks import Task
 
@@ -66,10 +66,10 @@ def test_result_roundtrip_and_validation(tmp_path):
     task = _task()
     path = ws.result_path(task)
     assert load_valid(path, task) is None  # not computed yet
-    write_json_atomic(path, _result(task))
+    write_result(path, _result(task))
     assert load_valid(path, task)["metrics"]["psnr"] == 30.0
     assert not list(path.parent.glob(".*tmp*")), "atomic write leaves no temporary file"
-    write_json_atomic(path, _result(task, status="failed"))
+    write_result(path, _result(task, status="failed"))
     assert load_valid(path, task) is None  # failed results are recomputed
 
 
@@ -94,7 +94,7 @@ def test_bad_result_file_names_the_file(tmp_path, content, message):
 def test_result_key_must_match_file(tmp_path):
     task = _task()
     path = tmp_path / "other.json"
-    write_json_atomic(path, _result(task))
+    write_result(path, _result(task))
     with pytest.raises(ResultError, match="does not match the file name"):
         read_result(path)
 
@@ -131,6 +131,77 @@ def test_store_failed_build_leaves_nothing_finished(tmp_path):
     assert not ws.is_built(task)
     with pytest.raises(Exception, match="not built"):
         ws.artifact_meta(task)
+
+
+def test_edited_result_is_refused(tmp_path):
+    """A hand-edited number (or a damaged file) no longer matches the content hash: the cell recomputes."""
+    task = _task()
+    path = Workspace(tmp_path).result_path(task)
+    write_result(path, _result(task))
+    data = json.loads(path.read_text())
+    data["metrics"]["psnr"] = 99.0
+    path.write_text(json.dumps(data))
+    with pytest.raises(ResultError, match="does not match its content_sha256") as err:
+        load_valid(path, task)
+    assert str(path) in str(err.value)
+    del data["content_sha256"]
+    write_json_atomic(path, data)
+    with pytest.raises(ResultError, match=r"missing field\(s\) \['content_sha256'\]"):
+        load_valid(path, task)
+
+
+def _built(tmp_path):
+    ws = Workspace(tmp_path)
+    task = _task(action="build")
+    calls = []
+
+    def build(out):
+        calls.append(1)
+        (out / "checkpoint.bin").write_bytes(b"weights")
+        return {}
+
+    ws.ensure(task, build)
+    return ws, task, build, calls
+
+
+@pytest.mark.parametrize("damage", ["flip", "truncate", "delete"])
+def test_damaged_artefact_is_detected_and_rebuilt(tmp_path, damage):
+    ws, task, build, calls = _built(tmp_path)
+    path = ws.artifact_dir(task) / "checkpoint.bin"
+    if damage == "flip":
+        path.write_bytes(b"weightS")
+    elif damage == "truncate":
+        path.write_bytes(b"wei")
+    else:
+        path.unlink()
+    fresh = Workspace(tmp_path)  # a new process: nothing verified yet
+    message = "missing" if damage == "delete" else "differs from"
+    with pytest.raises(Exception, match=message) as err:
+        fresh.verify(task)
+    assert str(path) in str(err.value)
+    assert not fresh.is_built(task)
+    warnings = []
+    fresh.ensure(task, build, warn=warnings.append)
+    assert len(calls) == 2 and fresh.is_built(task) and path.read_bytes() == b"weights"
+    assert "damaged artefact, rebuilding" in warnings[0]
+    assert len(list(ws.artifact_dir(task).parent.glob(f"{task.key}.corrupt-*"))) == 1  # kept for a look
+
+
+def test_intact_artefact_is_not_rebuilt(tmp_path):
+    ws, task, build, calls = _built(tmp_path)
+    fresh = Workspace(tmp_path)
+    assert fresh.is_built(task)
+    fresh.ensure(task, build)
+    assert len(calls) == 1
+
+
+def test_non_finite_metrics_fail_the_cell():
+    from bench.worker import check_finite_metrics
+
+    check_finite_metrics({"psnr": 30.0, "fps": None, "count": 3})
+    for bad in (float("nan"), float("inf"), float("-inf")):
+        with pytest.raises(ValueError, match="non-finite metric"):
+            check_finite_metrics({"psnr": bad})
 
 
 class _View:
