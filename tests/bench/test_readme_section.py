@@ -1,4 +1,4 @@
-"""``moegs compare --readme``: the README results section from (fake) finished runs and tables/paper."""
+"""``python -m bench.readme``: the README results section from (fake) finished runs and tables/paper."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import re
 import pytest
 
 from bench.paper import list_original_tables, load_original_table, load_paper_table
-from moegs.cli import main
-from moegs.compare import PAPER_NAMES, PUBLISHED, published_numbers, readme_section
+from bench.readme import PUBLISHED, main, paper_name, published_numbers, readme_section
+from bench.spec import EXPERTS
 
 PROFILE = "moegs/psnr_raw-ssim_3dgs-lpips_alex_legacy01"
 README = "# title\n\nintro\n\n<!-- results:mutant -->\nstale table\n<!-- /results:mutant -->\n\n## After\n"
@@ -54,8 +54,16 @@ def runs(tmp_path):
 def test_readme_section_rewritten_from_runs_and_published_tables(runs, tmp_path, capsys):
     readme = tmp_path / "README.md"
     readme.write_text(README)
-    args = ["compare", "--experts", "static,deformable,ed3dgs", "--scene", "dnerf:mutant", "--out", str(runs)]
-    assert main([*args, "--readme", str(readme), "--quiet"]) == 0
+    args = [
+        str(readme),
+        "--experts",
+        "static,deformable,ed3dgs",
+        "--scene",
+        "dnerf:mutant",
+        "--out",
+        str(runs),
+    ]
+    assert main([*args, "--quiet"]) == 0
     assert "README section 'mutant'" in capsys.readouterr().out
     text = readme.read_text()
     head, rest = text.split("<!-- results:mutant -->\n")
@@ -88,15 +96,15 @@ def test_readme_section_rewritten_from_runs_and_published_tables(runs, tmp_path,
     assert "100x100" in body and PROFILE in body
     assert len(sources) == 4  # DeformableGS Table 1 (2 rows), Grid4D README, MoE-GS Table XVII
 
-    assert main([*args, "--readme", str(readme), "--quiet"]) == 0  # finished runs: same text again
+    assert main([*args, "--quiet"]) == 0  # finished runs: same text again
     assert readme.read_text() == text
 
 
 def test_readme_without_markers_fails(runs, tmp_path, capsys):
     readme = tmp_path / "README.md"
     readme.write_text("# no section\n")
-    argv = ["compare", "--experts", "static", "--scene", "dnerf:mutant", "--out", str(runs), "--quiet"]
-    assert main([*argv, "--readme", str(readme)]) == 2
+    argv = [str(readme), "--experts", "static", "--scene", "dnerf:mutant", "--out", str(runs), "--quiet"]
+    assert main(argv) == 2
     assert "<!-- results:mutant -->" in capsys.readouterr().err
     assert readme.read_text() == "# no section\n"
 
@@ -116,4 +124,4 @@ def test_published_tables_have_sources_and_known_rows():
         entries = published_numbers(scene)
         assert len(entries) == len(spec["originals"]) + len(spec["moegs"])
         rows = {row for e in entries for row in e["rows"]}
-        assert rows & set(PAPER_NAMES.values()), rows
+        assert rows & {paper_name(e) for e in EXPERTS.values()}, rows
