@@ -26,35 +26,12 @@ from moegs.camera import Camera
 from moegs.gaussians import GaussianFrame
 from moegs.io.config import Presets, with_fields
 from moegs.train.config import TrainConfig
+from moegs.train.params import ParamGroup
 
 if TYPE_CHECKING:
     from moegs.data.scene import Scene, View
     from moegs.render import RenderOutput
     from moegs.train.strategy.base import Strategy
-
-
-@dataclass
-class ParamGroup:
-    """One optimiser group: a name, its tensors, the learning rate and an optional schedule.
-
-    ``lr_final`` / ``lr_delay_steps`` / ``lr_delay_mult`` / ``max_steps`` parameterise the 3DGS
-    exponential schedule (``moegs.train.schedules``); ``lr_final=None`` keeps the rate constant.
-    ``optimizer`` is ``"adam"`` (every 3DGS-lineage method) or ``"radam"``. A per-Gaussian tensor
-    (an entry of ``Expert.splats``) must sit in exactly one group so that densification can keep its
-    optimiser state in step.
-    """
-
-    name: str
-    params: list[Tensor]
-    lr: float
-    lr_final: float | None = None
-    lr_delay_steps: int = 0
-    lr_delay_mult: float = 1.0
-    max_steps: int = 30_000
-    eps: float = 1e-15
-    optimizer: str = "adam"
-    start_step: int = 0
-    """Iteration at which the schedule starts (its step 0), e.g. the first step of a later stage."""
 
 
 def splat_param_groups(

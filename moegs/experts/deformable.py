@@ -29,13 +29,14 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene
-from moegs.experts.base import DatasetPreset, ParamGroup
+from moegs.experts.base import DatasetPreset
 from moegs.experts.canonical import QUICK_STATIC_ITERATIONS, DeformingExpert
 from moegs.experts.gaussian_params import activate
 from moegs.experts.static import QUICK_DENSIFY, QUICK_ITERATIONS, QUICK_POINTS, QUICK_RESOLUTION, StaticConfig
 from moegs.fields import Heads, PositionalEncoding, SkipMLP, mlp
 from moegs.gaussians import GaussianFrame
 from moegs.train.config import TrainConfig
+from moegs.train.params import ParamGroup
 from moegs.train.strategy import ADCStrategy, Strategy
 
 

@@ -35,7 +35,7 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene, View
-from moegs.experts.base import DatasetPreset, Expert, ExpertConfig, ParamGroup, splat_param_groups
+from moegs.experts.base import DatasetPreset, Expert, ExpertConfig, splat_param_groups
 from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats, num_sh_bases
 from moegs.experts.static import (
     QUICK_ITERATIONS,
@@ -50,6 +50,7 @@ from moegs.gaussians import GaussianFrame
 from moegs.render import RenderOutput
 from moegs.train.config import TrainConfig
 from moegs.train.losses import dssim, l1
+from moegs.train.params import ParamGroup
 from moegs.train.strategy import NEVER, ADCStrategy, Strategy
 
 DEFORMABLE = ("means", "scales", "quats", "opacities", "sh")

@@ -30,13 +30,14 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene
-from moegs.experts.base import DatasetPreset, ParamGroup
+from moegs.experts.base import DatasetPreset
 from moegs.experts.canonical import QUICK_STATIC_ITERATIONS, DeformingExpert
 from moegs.experts.gaussian_params import activate, num_sh_bases, sh_coeffs
 from moegs.experts.static import QUICK_ITERATIONS, QUICK_POINTS, QUICK_RESOLUTION, StaticConfig
 from moegs.fields import Heads, HexPlane, mlp, xavier_weights_
 from moegs.gaussians import GaussianFrame
 from moegs.train.config import TrainConfig
+from moegs.train.params import ParamGroup
 from moegs.train.strategy import NEVER, ADCStrategy, ops
 
 SH_COEFFS = num_sh_bases(3)  # the dSH head always predicts all 16 bands x RGB

@@ -29,20 +29,10 @@ from torch import Tensor, nn
 from moegs.data.points import initial_scales
 from moegs.data.scene import PointCloud
 from moegs.gaussians import GaussianFrame
-from moegs.render.projection import SH_C0
+from moegs.render.projection import rgb_to_sh0
 
 SPLAT_KEYS = ("means", "scales", "quats", "opacities", "sh0", "shN")
 SH_DEGREE_INTERVAL = 1000  # 3DGS `oneupSHdegree` every 1000 iterations (train.py)
-
-
-def rgb_to_sh0(rgb: Tensor) -> Tensor:
-    """RGB ``[..., 3]`` in [0, 1] -> SH DC coefficient (3DGS ``RGB2SH``)."""
-    return (rgb - 0.5) / SH_C0
-
-
-def sh0_to_rgb(sh0: Tensor) -> Tensor:
-    """Inverse of :func:`rgb_to_sh0` (3DGS ``SH2RGB``)."""
-    return sh0 * SH_C0 + 0.5
 
 
 def num_sh_bases(degree: int) -> int:

@@ -29,7 +29,7 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene
-from moegs.experts.base import DatasetPreset, ParamGroup
+from moegs.experts.base import DatasetPreset
 from moegs.experts.canonical import QUICK_STATIC_ITERATIONS, DeformingExpert
 from moegs.experts.gaussian_params import activate
 from moegs.experts.static import QUICK_DENSIFY, QUICK_ITERATIONS, QUICK_POINTS, QUICK_RESOLUTION, StaticConfig
@@ -37,6 +37,7 @@ from moegs.fields import DecomposedHashGrid4D, Heads, mlp
 from moegs.gaussians import GaussianFrame
 from moegs.render.projection import quat_to_rotmat
 from moegs.train.config import TrainConfig
+from moegs.train.params import ParamGroup
 from moegs.train.strategy import ADCStrategy, Strategy
 
 IDENTITY_WARP = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # (q_w, q_x, q_y, q_z, t_x, t_y, t_z)

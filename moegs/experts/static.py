@@ -15,10 +15,11 @@ import torch
 
 from moegs.camera import Camera
 from moegs.data.scene import PointCloud, Scene
-from moegs.experts.base import DatasetPreset, Expert, ExpertConfig, ParamGroup, splat_param_groups
+from moegs.experts.base import DatasetPreset, Expert, ExpertConfig, splat_param_groups
 from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats
 from moegs.gaussians import GaussianFrame
 from moegs.train.config import TrainConfig
+from moegs.train.params import ParamGroup
 from moegs.train.strategy import NEVER, ADCStrategy, Strategy
 
 QUICK_RESOLUTION = 0.125  # quick presets: D-NeRF 800x800 -> 100x100 so a run takes about a minute on 2 cores

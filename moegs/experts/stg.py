@@ -16,8 +16,9 @@ opacity. Colour models (``STGConfig.color``):
 * ``"lite"``: raw per-Gaussian RGB (STG lite).
 
 Time is the segment's local time ``(j - start) / D``. ``STGSegments`` answers any global time with the
-model of the segment holding it (MoE-GS: two 150-frame models on N3V); ``train_segments`` trains them
-with the one training loop. Each step renders two cameras of one timestamp (STG ``batch = 2``).
+model of the segment holding it (MoE-GS: two 150-frame models on N3V);
+``moegs.train.segments.train_segments`` trains them with the one training loop. Each step renders two
+cameras of one timestamp (STG ``batch = 2``).
 
 Sources: ``oppo-us-research/SpacetimeGaussians`` @ 427abfc (``thirdparty/gaussian_splatting/scene/
 oursfull.py``, ``renderer/__init__.py``, ``train.py``, ``helper_train.py``, ``configs/``);
@@ -30,7 +31,6 @@ import bisect
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import partial
-from pathlib import Path
 from typing import Any, ClassVar
 
 import torch
@@ -471,7 +471,7 @@ class STGExpert(Expert):
 
     @classmethod
     def from_scene(cls, scene: Scene, config: STGConfig) -> STGExpert:
-        """A model of the whole ``scene`` (use ``segment_scene`` / ``train_segments`` for segments)."""
+        """A model of the whole ``scene`` (segments: ``moegs.train.segments.train_segments``)."""
         points = thin_points(scene_points(scene), config.max_init_points, config.train.seed)
         window = segment_bounds(sorted({v.camera.time for v in scene.train}), None)[0]
         times = _point_times(points, window, config.train.seed)
@@ -680,24 +680,3 @@ class STGSegments(nn.Module):
         check_keep(keep, self.num_gaussians)
         for model, part in zip(self.models, keep.split([m.num_gaussians for m in self.models]), strict=True):
             model.keep_gaussians(part)
-
-
-def train_segments(
-    scene: Scene, config: STGConfig, out_dir: str | Path | None = None, progress: bool = False
-) -> tuple[STGSegments, list[dict]]:
-    """Train one ``STGExpert`` per ``config.segment_frames`` window with the shared training loop.
-
-    Returns the wrapper and each segment's ``moegs.train.loop.train`` result (``out_dir/segment_<k>``
-    holds each run, so an interrupted call resumes).
-    """
-    from moegs.train.loop import train
-
-    bounds = segment_bounds(sorted({v.camera.time for v in scene.train}), config.segment_frames)
-    models, results = [], []
-    for k, (start, stop) in enumerate(bounds):
-        part = segment_scene(scene, start, stop)
-        model = STGExpert.from_scene(part, config)
-        run_dir = Path(out_dir) / f"segment_{k}" if out_dir is not None else None
-        results.append(train(model, part, out_dir=run_dir, progress=progress))
-        models.append(model)
-    return STGSegments(models, bounds).eval(), results

@@ -28,8 +28,8 @@ from torch import Tensor
 
 from moegs.camera import Camera
 from moegs.data.points import knn_mean_distance
-from moegs.experts.gaussian_params import rgb_to_sh0
 from moegs.metrics import ssim
+from moegs.render.projection import rgb_to_sh0
 
 PATCH = 16
 PATCH_FULL = 0.85  # a patch is flagged when more than this share of its pixels is bad

@@ -18,8 +18,8 @@ import numpy as np
 import torch
 from plyfile import PlyData, PlyElement
 
-from moegs.experts.gaussian_params import rgb_to_sh0
 from moegs.gaussians import GaussianFrame
+from moegs.render.projection import rgb_to_sh0
 
 _OPACITY_EPS = 1e-7  # keeps logit finite for opacities saturated at 0 or 1
 

@@ -33,10 +33,11 @@ from torch import Tensor, nn
 from moegs.camera import Camera
 from moegs.data.scene import Scene, View
 from moegs.experts import get_expert_class
-from moegs.experts.base import DatasetPreset, Expert, ExpertConfig, ParamGroup
+from moegs.experts.base import DatasetPreset, Expert, ExpertConfig
 from moegs.experts.static import QUICK_ITERATIONS, QUICK_RESOLUTION
 from moegs.gaussians import GaussianFrame
 from moegs.mode.gating import top_k_gates, warmup_scores, weight_spline
+from moegs.train.params import ParamGroup
 from moegs.train.strategy.base import Strategy
 
 CANONICAL_EXPERTS = ("fourdgs", "grid4d", "ed3dgs")

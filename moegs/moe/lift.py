@@ -24,10 +24,10 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from moegs.data.scene import View
-from moegs.experts.gaussian_params import rgb_to_sh0
 from moegs.gaussians import GaussianFrame, cat
 from moegs.moe.model import MoEGS
 from moegs.moe.splat import expert_inputs, splat_experts
+from moegs.render.projection import rgb_to_sh0
 
 
 def compute_responsibilities(

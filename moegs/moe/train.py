@@ -25,7 +25,7 @@ import torch
 from tqdm.auto import tqdm
 
 from moegs.data.scene import Scene, View
-from moegs.experts.base import Expert, ParamGroup
+from moegs.experts.base import Expert
 from moegs.io import save_checkpoint, to_dict, write_json
 from moegs.io.config import config_changes
 from moegs.moe.config import RouterConfig
@@ -33,6 +33,7 @@ from moegs.moe.model import ROUTER_CHECKPOINT, MoEGS, _check_experts, read_route
 from moegs.train.evaluate import eval_views, mean_scores, score_image
 from moegs.train.losses import photometric
 from moegs.train.optim import Optimizers
+from moegs.train.params import ParamGroup
 from moegs.train.sampler import ViewSampler
 from moegs.train.stopping import raise_if_stopped, stop_requests
 

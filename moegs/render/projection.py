@@ -233,6 +233,16 @@ def view_dirs(means: Tensor, camera: Camera) -> Tensor:
     return torch.nn.functional.normalize(means - camera.center.to(means.dtype), dim=-1)
 
 
+def rgb_to_sh0(rgb: Tensor) -> Tensor:
+    """RGB ``[..., 3]`` in [0, 1] -> SH DC coefficient (3DGS ``RGB2SH``)."""
+    return (rgb - 0.5) / SH_C0
+
+
+def sh0_to_rgb(sh0: Tensor) -> Tensor:
+    """Inverse of :func:`rgb_to_sh0` (3DGS ``SH2RGB``)."""
+    return sh0 * SH_C0 + 0.5
+
+
 def eval_sh(sh: Tensor, dirs: Tensor, degree: int) -> Tensor:
     """Colours ``max(SH(dir) + 0.5, 0)`` ``[N, C]`` from coefficients ``[N, B, C]`` and unit dirs ``[N, 3]``.
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from moegs.experts.base import ParamGroup
+from moegs.train.params import ParamGroup
 from moegs.train.schedules import group_lr
 
 ADAM_BETAS = (0.9, 0.999)  # torch defaults, used unchanged by 3DGS and every expert built on it

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from moegs.experts.base import ParamGroup
+from moegs.train.params import ParamGroup
 
 
 def expon_lr(

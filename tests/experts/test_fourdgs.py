@@ -141,7 +141,7 @@ def _strategy_setup(scene, n_points=40, **kw):
 
 
 def _group(name, param):
-    from moegs.experts.base import ParamGroup
+    from moegs.train.params import ParamGroup
 
     return ParamGroup(name, [param], 1e-3)
 

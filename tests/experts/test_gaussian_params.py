@@ -12,10 +12,8 @@ from moegs.experts.gaussian_params import (
     active_sh_degree,
     init_splats,
     num_sh_bases,
-    rgb_to_sh0,
-    sh0_to_rgb,
 )
-from moegs.render.projection import SH_C0
+from moegs.render.projection import SH_C0, rgb_to_sh0, sh0_to_rgb
 
 
 def _cloud(n=50):

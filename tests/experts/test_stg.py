@@ -21,11 +21,11 @@ from moegs.experts.stg import (
     segment_index,
     segment_scene,
     temporal_opacity,
-    train_segments,
 )
 from moegs.experts.stg_decoder import FeatureDecoder
 from moegs.train.config import TrainConfig
 from moegs.train.optim import Optimizers
+from moegs.train.segments import train_segments
 
 
 def monocular(scene):

@@ -4,9 +4,9 @@ import pytest
 import torch
 from safetensors.torch import save_file
 
-from moegs.experts.base import ParamGroup
 from moegs.io import load_checkpoint, save_checkpoint
 from moegs.train.optim import Optimizers
+from moegs.train.params import ParamGroup
 
 
 def test_nested_state_round_trip_is_bit_exact(tmp_path):

@@ -5,9 +5,9 @@ import pytest
 import torch
 from plyfile import PlyData, PlyElement
 
-from moegs.experts.gaussian_params import rgb_to_sh0
 from moegs.gaussians import GaussianFrame
 from moegs.io import export_ply, read_ply
+from moegs.render.projection import rgb_to_sh0
 
 
 def _frame(n=6, degree=3):

@@ -6,8 +6,8 @@ import pytest
 import torch
 from torch import nn
 
-from moegs.experts.base import ParamGroup
 from moegs.train.optim import Optimizers
+from moegs.train.params import ParamGroup
 from moegs.train.strategy import ops
 
 N = 5

@@ -5,8 +5,8 @@ import math
 import pytest
 import torch
 
-from moegs.experts.base import ParamGroup
 from moegs.train.optim import Optimizers
+from moegs.train.params import ParamGroup
 from moegs.train.schedules import expon_lr, group_lr
 
 LR0, LR1, STEPS = 1.6e-4, 1.6e-6, 30_000  # 3DGS position_lr_init / _final / _max_steps

@@ -1,0 +1,31 @@
+"""Optimiser groups as the experts declare them (``Expert.param_groups``) and the optimiser builds them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from torch import Tensor
+
+
+@dataclass
+class ParamGroup:
+    """One optimiser group: a name, its tensors, the learning rate and an optional schedule.
+
+    ``lr_final`` / ``lr_delay_steps`` / ``lr_delay_mult`` / ``max_steps`` parameterise the 3DGS
+    exponential schedule (``moegs.train.schedules``); ``lr_final=None`` keeps the rate constant.
+    ``optimizer`` is ``"adam"`` (every 3DGS-lineage method) or ``"radam"``. A per-Gaussian tensor
+    (an entry of ``Expert.splats``) must sit in exactly one group so that densification can keep its
+    optimiser state in step.
+    """
+
+    name: str
+    params: list[Tensor]
+    lr: float
+    lr_final: float | None = None
+    lr_delay_steps: int = 0
+    lr_delay_mult: float = 1.0
+    max_steps: int = 30_000
+    eps: float = 1e-15
+    optimizer: str = "adam"
+    start_step: int = 0
+    """Iteration at which the schedule starts (its step 0), e.g. the first step of a later stage."""
