@@ -75,6 +75,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--no-run", action="store_true", help="only rebuild tables, plots and report from results")
     p.add_argument(
+        "--candidate",
+        action="append",
+        metavar="EXPERT",
+        help="add a registered expert (a plugin's entry-point name) as a third-expert candidate to Table X",
+    )
+    p.add_argument(
         "--require-real",
         action="store_true",
         help="fail (before any work) when a selected table would run on a synthetic stand-in",
@@ -171,7 +177,12 @@ def main(argv: list[str] | None = None) -> int:
 
     workspace = Workspace(args.workspace)
     start = time.perf_counter()
-    plan = make_plan(list_specs(), preset)
+    specs = [get_spec(s) for s in list_specs()]
+    if args.candidate:
+        specs = with_candidates(specs, selected, args.candidate)
+        if specs is None:
+            return 2
+    plan = make_plan(specs, preset)
     run_plan = type(plan)(preset, [sp for sp in plan.specs if sp.spec.id in selected])
     stand_ins = data_line(run_plan)
     if stand_ins:
@@ -216,6 +227,24 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 1
     return 0
+
+
+def with_candidates(specs: list, selected: list[str], names: list[str]) -> list | None:
+    """``specs`` with Table X extended by the candidate experts ``names`` (None, after saying why, when
+    Table X is not selected or a name is not a registered expert)."""
+    from bench.tab10 import with_candidates as table_x
+    from moegs.experts import get_spec as expert_spec
+
+    if "tab10" not in selected:
+        print("error: --candidate extends Table X: add --tables 10", file=sys.stderr)
+        return None
+    for name in names:
+        try:
+            expert_spec(name)
+        except ValueError as err:
+            print(f"error: --candidate: {err}", file=sys.stderr)
+            return None
+    return [table_x(names) if s.id == "tab10" else s for s in specs]
 
 
 def execute_interruptibly(plan, workspace, executor, progress: bool):

@@ -50,7 +50,8 @@ def file_sha256(path: Path) -> str:
 
 @cache
 def code_version() -> str:
-    """Hash of the library source (``moegs/``), or ``$MOEGS_BENCH_CODE_VERSION``."""
+    """Hash of the library source (``moegs/``) and of every plugin expert's module, or
+    ``$MOEGS_BENCH_CODE_VERSION``."""
     pinned = os.environ.get(CODE_VERSION_ENV)
     if pinned:
         return pinned
@@ -59,7 +60,27 @@ def code_version() -> str:
     for p in sorted(root.rglob("*")):
         if p.is_file() and p.suffix in _SOURCE_SUFFIXES and "__pycache__" not in p.parts:
             h.update(str(p.relative_to(root)).encode() + b"\0" + p.read_bytes() + b"\0")
+    for name, source in plugin_sources():
+        h.update(name.encode() + b"\0" + source + b"\0")
     return h.hexdigest()[:16]
+
+
+def plugin_sources() -> list[tuple[str, bytes]]:
+    """``(expert name, source of its module)`` of each plugin expert (entry points), without importing
+    them: a change in a plugin invalidates the cells that use it."""
+    import importlib.util
+
+    from moegs.experts import list_experts
+
+    out = []
+    for spec in list_experts():
+        if spec.plugin is None:
+            continue
+        module = spec.target.partition(":")[0]
+        found = importlib.util.find_spec(module)
+        origin = Path(found.origin) if found is not None and found.origin else None
+        out.append((spec.name, origin.read_bytes() if origin is not None and origin.is_file() else b""))
+    return out
 
 
 @cache
