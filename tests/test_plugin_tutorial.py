@@ -89,3 +89,68 @@ def test_plugin_is_a_table_x_candidate(plugin, tmp_path):
     assert re.search(r"\d+\.\d+", row), row  # our number is in the table
     report = (subset / "reports" / "REPORT.md").read_text()
     assert "N=3 with candidate 'linear' improves over N=2" in report
+
+
+BROKEN_PLUGINS = {  # entry point value, module source, expected message after "expert 'bad' (...)"
+    "cannot import": ("nosuch_module_xyz:Expert", None, "cannot import nosuch_module_xyz"),
+    "no such class": ("badplugin:Missing", "X = 1\n", "module badplugin has no 'Missing'"),
+    "not an expert": ("badplugin:X", "X = 1\n", "1 is not a subclass of moegs.experts.base.Expert"),
+    "wrong name": (
+        "badplugin:Other",
+        "from moegs.experts.static import StaticExpert\nclass Other(StaticExpert):\n    name = 'other'\n",
+        "the class sets name = 'other'; it must be 'bad'",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BROKEN_PLUGINS))
+def test_broken_plugins_are_named(case, tmp_path, monkeypatch):
+    value, source, message = BROKEN_PLUGINS[case]
+    dist = tmp_path / "badplugin-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: badplugin\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text(f"[moegs.experts]\nbad = {value}\n")
+    if source is not None:
+        (tmp_path / "badplugin.py").write_text(source)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    sys.modules.pop("badplugin", None)
+    moegs.experts.reload_plugins()
+    try:
+        assert "bad" in [s.name for s in moegs.experts.list_experts()]
+        with pytest.raises((ImportError, ValueError)) as err:
+            moegs.experts.get_expert_class("bad")
+        assert str(err.value).startswith(
+            f"expert 'bad' (entry point 'bad' = '{value}' of badplugin): {message}"
+        )
+    finally:
+        monkeypatch.undo()
+        moegs.experts.reload_plugins()
+
+
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ("static = moegs.experts.static:StaticExpert", "'static' is the name of a built-in expert"),
+        ("bad = badplugin", "expected 'package.module:ExpertClass'"),
+    ],
+)
+def test_bad_entry_points_are_named(line, message, tmp_path, monkeypatch):
+    dist = tmp_path / "badplugin-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: badplugin\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text(f"[moegs.experts]\n{line}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    moegs.experts.reload_plugins()
+    try:
+        with pytest.raises(ValueError, match=re.escape(message)) as err:
+            moegs.experts.list_experts()
+        assert "of badplugin" in str(err.value)
+    finally:
+        monkeypatch.undo()
+        moegs.experts.reload_plugins()
+
+
+def test_listing_experts_does_not_import_torch():
+    code = "import sys, moegs.experts as e; e.list_experts(); print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
