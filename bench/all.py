@@ -78,7 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--candidate",
         action="append",
         metavar="EXPERT",
-        help="add a registered expert (a plugin's entry-point name) as a third-expert candidate to Table X",
+        help="add an expert as a third-expert candidate to Table X: a registered name (a plugin's entry "
+        "point) or package.module:Class",
     )
     p.add_argument(
         "--require-real",
@@ -238,13 +239,32 @@ def with_candidates(specs: list, selected: list[str], names: list[str]) -> list 
     if "tab10" not in selected:
         print("error: --candidate extends Table X: add --tables 10", file=sys.stderr)
         return None
-    for name in names:
-        try:
+    try:
+        names = [register_candidate(n) if ":" in n else n for n in names]
+        for name in names:
             expert_spec(name)
-        except ValueError as err:
-            print(f"error: --candidate: {err}", file=sys.stderr)
-            return None
+    except (ImportError, ValueError) as err:
+        print(f"error: --candidate: {err}", file=sys.stderr)
+        return None
     return [table_x(names) if s.id == "tab10" else s for s in specs]
+
+
+def register_candidate(target: str) -> str:
+    """Register the expert class ``package.module:Class`` for this run and its workers (through
+    ``$MOEGS_EXPERTS``) under the class's ``name``; returns that name."""
+    import importlib
+
+    from moegs.experts import EXPERTS_ENV, reload_plugins
+
+    module, _, attr = target.partition(":")
+    cls = getattr(importlib.import_module(module), attr, None)
+    name = getattr(cls, "name", "")
+    if not name:
+        raise ValueError(f"{target} is not an expert class with a registry name (class attribute `name`)")
+    entries = [e for e in os.environ.get(EXPERTS_ENV, "").split(",") if e]
+    os.environ[EXPERTS_ENV] = ",".join([*entries, f"{name}={target}"])
+    reload_plugins()
+    return name
 
 
 def execute_interruptibly(plan, workspace, executor, progress: bool):

@@ -150,6 +150,29 @@ def test_bad_entry_points_are_named(line, message, tmp_path, monkeypatch):
         moegs.experts.reload_plugins()
 
 
+def test_candidate_by_class_path_reaches_the_workers(tmp_path, monkeypatch):
+    """``--candidate package.module:Class`` registers an unpackaged expert for the run and its workers."""
+    from bench.all import register_candidate
+
+    source = tutorial_block("expert").replace('name = "linear"', 'name = "loose"')
+    (tmp_path / "loose_expert.py").write_text(source)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("MOEGS_EXPERTS", "")
+    try:
+        assert register_candidate("loose_expert:LinearMotionExpert") == "loose"
+        assert os.environ["MOEGS_EXPERTS"] == "loose=loose_expert:LinearMotionExpert"
+        assert moegs.experts.get_spec("loose").plugin == "$MOEGS_EXPERTS"
+        code = "import moegs.experts as e; print(e.get_spec('loose').target)"
+        env = {**os.environ, "PYTHONPATH": str(tmp_path)}
+        out = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True
+        )
+        assert out.stdout.strip() == "loose_expert:LinearMotionExpert"
+    finally:
+        monkeypatch.undo()
+        moegs.experts.reload_plugins()
+
+
 def test_listing_experts_does_not_import_torch():
     code = "import sys, moegs.experts as e; e.list_experts(); print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

@@ -10,10 +10,14 @@ run time with :func:`register`.
 from __future__ import annotations
 
 import importlib
+import os
 from dataclasses import dataclass
 from functools import cache
 
 ENTRY_POINT_GROUP = "moegs.experts"
+EXPERTS_ENV = "MOEGS_EXPERTS"
+"""``name=package.module:Class[,name=...]``: experts registered for this process and its children (how
+``bench.all --candidate package.module:Class`` hands an unpackaged expert to its workers)."""
 
 
 @dataclass(frozen=True)
@@ -107,6 +111,13 @@ def _plugins() -> dict[str, ExpertSpec]:
         if ep.name in found:
             raise ValueError(f"{where}: {ep.name!r} is also registered by {found[ep.name].origin}")
         found[ep.name] = ExpertSpec(ep.name, ep.value, f"plugin expert from {dist}", plugin=dist)
+    for item in filter(None, (i.strip() for i in os.environ.get(EXPERTS_ENV, "").split(","))):
+        name, _, target = item.partition("=")
+        if not name or ":" not in target:
+            raise ValueError(f"${EXPERTS_ENV}: expected name=package.module:Class entries, got {item!r}")
+        if name in _BUILTIN or name in found:
+            raise ValueError(f"${EXPERTS_ENV}: {name!r} is already registered")
+        found[name] = ExpertSpec(name, target, f"expert from ${EXPERTS_ENV}", plugin=f"${EXPERTS_ENV}")
     return found
 
 

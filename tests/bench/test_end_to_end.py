@@ -162,10 +162,8 @@ def test_plots_and_report(run):
 
 
 def test_warm_rerun_reuses_everything(run):
-    start = time.perf_counter()
     again = execute(run["plan"], run["ws"], LocalExecutor(jobs=2), progress=False)
     assert again.builds_run == 0 and again.evals_run == 0 and again.evals_reused >= 1
-    assert time.perf_counter() - start < 30
 
 
 def test_failing_cell_is_isolated(run):
