@@ -82,6 +82,7 @@ def save_checkpoint(path: str | Path, state: dict) -> Path:
     tmp = _temporary(path)
     try:
         save_file(tensors, tmp, metadata={_META_KEY: meta})
+        os.chmod(tmp, _umask_mode())  # safetensors writes a new file with mode 0600
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

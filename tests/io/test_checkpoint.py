@@ -70,3 +70,22 @@ def test_errors_name_the_problem(tmp_path):
     save_file({"x": torch.ones(1)}, tmp_path / "plain.safetensors")
     with pytest.raises(ValueError, match="not a moegs checkpoint"):
         load_checkpoint(tmp_path / "plain.safetensors")
+
+
+def test_written_files_follow_the_umask(tmp_path):
+    """Checkpoints and JSON files are readable by the group and others under a 022 umask (not 0600)."""
+    import os
+    import stat
+
+    from moegs.io import save_checkpoint, write_json
+
+    old = os.umask(0o022)
+    try:
+        paths = [
+            write_json(tmp_path / "a.json", {"x": 1}),
+            save_checkpoint(tmp_path / "c.safetensors", {"w": torch.ones(2)}),
+        ]
+    finally:
+        os.umask(old)
+    for path in paths:
+        assert stat.S_IMODE(path.stat().st_mode) == 0o644, path
