@@ -197,14 +197,26 @@ def test_debug_shows_the_traceback():
 
 
 # -- 3. dataset loaders: JSON fields are type-checked, errors name file and field ---------------------
-def _dnerf(tmp_path: Path, change) -> tuple[Path, Path]:
+def _edited(tmp_path: Path, write, name: str, change) -> tuple[Path, Path]:
+    """A fixture scene written by ``write(root)`` whose JSON file ``name`` is passed through ``change``."""
     root = tmp_path / "scene"
-    _fixtures().write_dnerf(root)
-    path = root / "transforms_train.json"
+    write(root)
+    path = root / name
     data = json.loads(path.read_text())
     change(data)
     path.write_text(json.dumps(data))
     return root, path
+
+
+def _error_text(call, error) -> str:
+    """The message of the ``error`` that ``call()`` raises (a KeyError's own text, unquoted)."""
+    with pytest.raises(error) as err:
+        call()
+    return err.value.args[0] if isinstance(err.value, KeyError) else str(err.value)
+
+
+def _dnerf(tmp_path: Path, change) -> tuple[Path, Path]:
+    return _edited(tmp_path, _fixtures().write_dnerf, "transforms_train.json", change)
 
 
 def _set(field, value):
@@ -247,9 +259,7 @@ def test_dnerf_json_fields_are_checked(case, tmp_path):
 
     change, error, message = DNERF[case]
     root, path = _dnerf(tmp_path, change)
-    with pytest.raises(error) as err:
-        load_dnerf(root)
-    text = err.value.args[0] if isinstance(err.value, KeyError) else str(err.value)
+    text = _error_text(lambda: load_dnerf(root), error)
     assert text.startswith(message.format(path=path)), text
 
 
@@ -269,13 +279,9 @@ def test_dnerf_file_errors_name_the_file(tmp_path):
 
 
 def _panoptic_meta(tmp_path: Path, change) -> tuple[Path, Path]:
-    root = tmp_path / "scene"
-    _fixtures().write_panoptic(root, frames=2)
-    path = root / "train_meta.json"
-    data = json.loads(path.read_text())
-    change(data)
-    path.write_text(json.dumps(data))
-    return root, path
+    return _edited(
+        tmp_path, lambda root: _fixtures().write_panoptic(root, frames=2), "train_meta.json", change
+    )
 
 
 def _zero_focal(d):
@@ -301,23 +307,13 @@ def test_panoptic_meta_is_checked(case, tmp_path):
 
     change, error, message = PANOPTIC[case]
     root, path = _panoptic_meta(tmp_path, change)
-    with pytest.raises(error) as err:
-        load_panoptic(root)
-    text = err.value.args[0] if isinstance(err.value, KeyError) else str(err.value)
+    text = _error_text(lambda: load_panoptic(root), error)
     assert text == message.format(path=path), text
 
 
 def _hypernerf_camera(tmp_path: Path, field: str, value) -> tuple[Path, Path]:
-    root = tmp_path / "scene"
-    _fixtures().write_hypernerf(root)
-    path = root / "camera" / "0_00000.json"
-    data = json.loads(path.read_text())
-    if value is KeyError:
-        data.pop(field)
-    else:
-        data[field] = value
-    path.write_text(json.dumps(data))
-    return root, path
+    change = (lambda d: d.pop(field)) if value is KeyError else (lambda d: d.__setitem__(field, value))
+    return _edited(tmp_path, _fixtures().write_hypernerf, "camera/0_00000.json", change)
 
 
 HYPERNERF = {
@@ -339,9 +335,7 @@ def test_hypernerf_camera_fields_are_checked(case, tmp_path):
 
     field, value, error, message = HYPERNERF[case]
     root, path = _hypernerf_camera(tmp_path, field, value)
-    with pytest.raises(error) as err:
-        load_hypernerf(root)
-    text = err.value.args[0] if isinstance(err.value, KeyError) else str(err.value)
+    text = _error_text(lambda: load_hypernerf(root), error)
     assert text.startswith(message.format(path=path)), text
 
 

@@ -99,16 +99,22 @@ def test_result_key_must_match_file(tmp_path):
         read_result(path)
 
 
-def test_store_builds_once_under_concurrency(tmp_path):
-    ws = Workspace(tmp_path)
-    task = _task(action="build")
+def _builder(meta: dict):
+    """A build function writing ``checkpoint.bin`` and returning ``meta``, and the list of its calls."""
     calls = []
 
     def build(out):
         calls.append(1)
-        (out / "checkpoint.bin").write_bytes(b"x")
-        return {"train_seconds": 1.0}
+        (out / "checkpoint.bin").write_bytes(b"weights")
+        return dict(meta)
 
+    return build, calls
+
+
+def test_store_builds_once_under_concurrency(tmp_path):
+    ws = Workspace(tmp_path)
+    task = _task(action="build")
+    build, calls = _builder({"train_seconds": 1.0})
     threads = [threading.Thread(target=ws.ensure, args=(task, build)) for _ in range(4)]
     for t in threads:
         t.start()
@@ -153,13 +159,7 @@ def test_edited_result_is_refused(tmp_path):
 def _built(tmp_path):
     ws = Workspace(tmp_path)
     task = _task(action="build")
-    calls = []
-
-    def build(out):
-        calls.append(1)
-        (out / "checkpoint.bin").write_bytes(b"weights")
-        return {}
-
+    build, calls = _builder({})
     ws.ensure(task, build)
     return ws, task, build, calls
 
