@@ -258,7 +258,13 @@ def test_interrupted_run_resumes_to_the_same_results(run, tmp_path, how):
     cmd = [sys.executable, "-m", "bench.all", "--tables", "17", "--preset", "tiny", "--jobs", "2"]
     cmd += ["--workspace", str(ws), "--out", str(tmp_path / "out"), "--no-progress"]
     proc = subprocess.Popen(
-        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        # a terminal's foreground job: SIGINT is not ignored, even if this test runs in a background job
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     deadline = time.monotonic() + 600
     while not any((ws / "store").glob("expert/*.partial")):  # an expert is training

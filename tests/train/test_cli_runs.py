@@ -60,7 +60,14 @@ def _start(out: Path, iterations: int, every: int) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "moegs.cli", "train", "--expert", "static", *SMALL, "--out", str(out)]
     cmd += ["--iterations", str(iterations), "--checkpoint-every", str(every)]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}  # the "recipe:" line arrives when it is printed
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    return subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, preexec_fn=default_sigint
+    )
+
+
+def default_sigint() -> None:
+    """In the child: SIGINT as in a terminal's foreground job (a background test run inherits it ignored)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _wait_for_checkpoint(proc: subprocess.Popen, out: Path) -> None:
@@ -186,7 +193,12 @@ def test_route_ctrl_c_and_kill_9_resume_to_the_same_result(route_experts, tmp_pa
         out = _route_folder(route_experts, tmp_path / how)
         ckpt = out / "router_vapr" / "router.safetensors"
         proc = subprocess.Popen(
-            _route_cmd(out, 10), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+            _route_cmd(out, 10),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+            preexec_fn=default_sigint,
         )
         deadline = time.monotonic() + 300
         while not ckpt.is_file():
