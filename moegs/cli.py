@@ -20,7 +20,7 @@ import json
 import sys
 from pathlib import Path
 
-from moegs.cli_types import positive_int, scene_name, seed, unit_scale, unit_time
+from moegs.cli_types import add_resume_arguments, positive_int, scene_name, seed, unit_scale, unit_time
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
@@ -273,14 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--no-resume", action="store_true", help="start over even if the run folder has a checkpoint"
     )
-    p.add_argument(
-        "--checkpoint-every",
-        type=positive_int,
-        help="write a resumable checkpoint every N iterations (default: a tenth of the run)",
-    )
-    p.add_argument(
-        "--force", action="store_true", help="train again even if the run folder holds a finished run"
-    )
+    add_resume_arguments(p, "expert")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("recipe", help="the config a run uses: dataset preset, scene values, reductions")

@@ -3,61 +3,45 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
+from typing import TypeVar
+
+T = TypeVar("T")
 
 
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+def _checked(parse: Callable[[str], T], ok: Callable[[T], bool], expected: str) -> Callable[[str], T]:
+    """An argparse type: ``parse(text)``, rejected with ``expected ..., got '<text>'`` when it fails to
+    parse or ``ok`` is false (a NaN fails every range test)."""
+
+    def check(text: str) -> T:
+        try:
+            value = parse(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+        if not ok(value):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
+        return value
+
+    return check
 
 
-def unit_time(text: str) -> float:
-    """argparse type: a normalised time, a finite float in [0, 1]."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a time in [0, 1], got {text!r}") from None
-    if not 0.0 <= value <= 1.0:  # also rejects nan
-        raise argparse.ArgumentTypeError(f"expected a time in [0, 1], got {text!r}")
-    return value
+positive_int = _checked(int, lambda v: v >= 1, "a positive integer")
+non_negative_int = _checked(int, lambda v: v >= 0, "an integer >= 0")
+seed = _checked(int, lambda v: 0 <= v < 2**63, "an integer seed in [0, 2**63)")
+unit_time = _checked(float, lambda v: 0.0 <= v <= 1.0, "a time in [0, 1]")
+unit_scale = _checked(float, lambda v: 0.0 < v <= 1.0, "a scale in (0, 1]")
 
 
-def non_negative_int(text: str) -> int:
-    """argparse type: an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
-    return value
-
-
-def seed(text: str) -> int:
-    """argparse type: a random seed, an integer in [0, 2**63) (what torch and numpy accept)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer seed in [0, 2**63), got {text!r}") from None
-    if not 0 <= value < 2**63:
-        raise argparse.ArgumentTypeError(f"expected an integer seed in [0, 2**63), got {value}")
-    return value
-
-
-def unit_scale(text: str) -> float:
-    """argparse type: an image scale, a float in (0, 1]."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a scale in (0, 1], got {text!r}") from None
-    if not 0.0 < value <= 1.0:  # also rejects nan
-        raise argparse.ArgumentTypeError(f"expected a scale in (0, 1], got {text!r}")
-    return value
+def add_resume_arguments(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--checkpoint-every`` and ``--force`` of a command that trains ``what`` (train, route)."""
+    parser.add_argument(
+        "--checkpoint-every",
+        type=positive_int,
+        help=f"write a resumable {what} checkpoint every N iterations (default: a tenth of the run)",
+    )
+    parser.add_argument(
+        "--force", action="store_true", help=f"train the {what} again even if its folder holds a finished run"
+    )
 
 
 def scene_name(text: str) -> str:

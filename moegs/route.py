@@ -17,7 +17,7 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
-from moegs.cli_types import non_negative_int, positive_int, scene_name, seed
+from moegs.cli_types import add_resume_arguments, non_negative_int, positive_int, scene_name, seed
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -45,14 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--gate-views", type=non_negative_int, default=4, help="test views drawn as gate figures (0: none)"
     )
-    p.add_argument(
-        "--checkpoint-every",
-        type=positive_int,
-        help="write a resumable router checkpoint every N iterations (default: a tenth of the run)",
-    )
-    p.add_argument(
-        "--force", action="store_true", help="train the router again even if its folder holds a finished run"
-    )
+    add_resume_arguments(p, "router")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 

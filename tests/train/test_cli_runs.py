@@ -111,7 +111,7 @@ def test_ctrl_c_saves_and_kill_9_resumes_to_the_same_result(tmp_path):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["render", "run", "--fps", "0"], "--fps: expected a positive integer, got 0"),
+        (["render", "run", "--fps", "0"], "--fps: expected a positive integer, got '0'"),
         (["export", "run", "--time", "7.5"], "--time: expected a time in [0, 1], got '7.5'"),
         (["export", "run", "--time", "nan"], "--time: expected a time in [0, 1], got 'nan'"),
         (
