@@ -8,13 +8,12 @@ rasterizer's inputs. Each case asserts the message itself, not only that somethi
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import re
-import sys
 from pathlib import Path
 
+import helpers.data_layouts as fx
 import pytest
 import torch
 
@@ -25,16 +24,6 @@ from moegs.render import rasterize
 
 SCENE = "synthetic:dnerf_like"
 EXPERTS = "deformable, ed3dgs, ex4dgs, fourdgs, grid4d, mcmc, mode, static, stg"
-
-
-def _fixtures():
-    name = "moegs_tests_data_fixtures"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).parent / "data" / "fixtures.py")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
 
 
 def _one_line(text: str) -> str:
@@ -216,7 +205,7 @@ def _error_text(call, error) -> str:
 
 
 def _dnerf(tmp_path: Path, change) -> tuple[Path, Path]:
-    return _edited(tmp_path, _fixtures().write_dnerf, "transforms_train.json", change)
+    return _edited(tmp_path, fx.write_dnerf, "transforms_train.json", change)
 
 
 def _set(field, value):
@@ -279,9 +268,7 @@ def test_dnerf_file_errors_name_the_file(tmp_path):
 
 
 def _panoptic_meta(tmp_path: Path, change) -> tuple[Path, Path]:
-    return _edited(
-        tmp_path, lambda root: _fixtures().write_panoptic(root, frames=2), "train_meta.json", change
-    )
+    return _edited(tmp_path, lambda root: fx.write_panoptic(root, frames=2), "train_meta.json", change)
 
 
 def _zero_focal(d):
@@ -313,7 +300,7 @@ def test_panoptic_meta_is_checked(case, tmp_path):
 
 def _hypernerf_camera(tmp_path: Path, field: str, value) -> tuple[Path, Path]:
     change = (lambda d: d.pop(field)) if value is KeyError else (lambda d: d.__setitem__(field, value))
-    return _edited(tmp_path, _fixtures().write_hypernerf, "camera/0_00000.json", change)
+    return _edited(tmp_path, fx.write_hypernerf, "camera/0_00000.json", change)
 
 
 HYPERNERF = {

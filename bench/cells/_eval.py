@@ -1,7 +1,8 @@
-"""Score any renderer on a scene's test views: image metrics, region metrics, speed, model size.
+"""A cell's evaluation: the preset's test views and metric profile, scored by the library's one evaluation,
+plus render speed and model size.
 
-``render(camera) -> image [H, W, 3]`` is called under ``torch.no_grad``. Scores come from the library's
-one evaluation (``moegs.train.evaluate.evaluate_renderer``) with the preset's metric profile: full image,
+``render(camera) -> image [H, W, 3]`` is called under ``torch.no_grad``. Scores come from
+``moegs.train.evaluate.evaluate_renderer`` (this module adds no metric of its own): full image,
 dynamic region and static region (synthetic stand-ins: ground-truth dynamic mask; D-NeRF: object alpha;
 Panoptic: foreground segmentation). Speed follows ``moegs.metrics.speed.measure_render`` (render call
 only, warm-up, median per view).
@@ -24,20 +25,19 @@ def module_megabytes(*modules: Any) -> float:
     return total / 2**20
 
 
-def evaluate_renderer(
+def evaluate_cell(
     render: Callable[[Any], Any], scene: Any, preset: BenchPreset, *, speed: bool = True, regions: bool = True
 ) -> dict[str, Any]:
     """``{"metrics", "per_view", "details"}`` of ``render`` on ``scene``'s test views under ``preset``."""
     import torch
 
     from moegs.metrics import measure_render
-    from moegs.train.evaluate import eval_views
-    from moegs.train.evaluate import evaluate_renderer as score_views
+    from moegs.train.evaluate import eval_views, evaluate_renderer
 
     views = eval_views(scene.test, preset.test_views)
     if not views:
         raise ValueError(f"scene {scene.name} has no test views")
-    scores = score_views(render, views, preset.metric_profile, regions=regions)
+    scores = evaluate_renderer(render, views, preset.metric_profile, regions=regions)
     per_view = scores.pop("per_view")
     profile = scores.pop("profile")
     details: dict[str, Any] = {

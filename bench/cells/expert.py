@@ -15,7 +15,7 @@ from typing import Any
 
 from bench.cells import LOAD_EXPERT, TRAIN_LOOP, experts_missing, module_missing
 from bench.cells import scene as scene_kind
-from bench.cells._eval import evaluate_renderer, module_megabytes
+from bench.cells._eval import evaluate_cell, module_megabytes
 from bench.cells._lib import expert_renderer, expert_task, load_trained_expert, recipe_of
 from bench.tasks import Task
 
@@ -53,7 +53,7 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     build_task = artifacts(task)[0]
     expert = load_trained_expert(ctx, build_task)
     scene = ctx.scene(task, recipe_of(ctx, build_task).background)
-    out = evaluate_renderer(expert_renderer(expert, scene.background), scene, ctx.preset)
+    out = evaluate_cell(expert_renderer(expert, scene.background), scene, ctx.preset)
     meta = ctx.meta(build_task)
     out["metrics"]["memory_mb"] = module_megabytes(expert)
     out["metrics"]["train_time_h"] = float(meta.get("train_seconds") or 0.0) / 3600.0

@@ -21,7 +21,7 @@ from typing import Any
 
 from bench.cells import expert_missing, experts_missing, module_missing
 from bench.cells import scene as scene_kind
-from bench.cells._eval import evaluate_renderer, module_megabytes
+from bench.cells._eval import evaluate_cell, module_megabytes
 from bench.cells._lib import expert_renderer, load_trained_expert, recipe_of
 from bench.tasks import Task
 
@@ -70,7 +70,7 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     build_task = artifacts(task)[0]
     scene = ctx.scene(task, recipe(ctx, build_task).background)
     model = load_trained_expert(ctx, build_task, scene)
-    out = evaluate_renderer(expert_renderer(model, scene.background), scene, ctx.preset)
+    out = evaluate_cell(expert_renderer(model, scene.background), scene, ctx.preset)
     meta = ctx.meta(build_task)
     out["metrics"]["memory_mb"] = module_megabytes(model)
     out["metrics"]["train_time_h"] = float(meta.get("train_seconds") or 0.0) / 3600.0

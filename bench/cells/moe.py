@@ -28,7 +28,7 @@ from typing import Any
 from bench.cells import expert as expert_kind
 from bench.cells import experts_missing, module_missing
 from bench.cells import scene as scene_kind
-from bench.cells._eval import evaluate_renderer, module_megabytes
+from bench.cells._eval import evaluate_cell, module_megabytes
 from bench.cells._lib import expert_task, load_trained_expert, shared_background, train_hours
 from bench.tasks import Task
 
@@ -160,7 +160,7 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
         gates.append(out.gates)
         return out.image
 
-    out = evaluate_renderer(render, scene, ctx.preset)
+    out = evaluate_cell(render, scene, ctx.preset)
     details["routing"] = routing_signal(gates, eval_views(scene.test, ctx.preset.test_views))
     out["metrics"]["memory_mb"] = module_megabytes(model)
     out["metrics"]["train_time_h"] = train_hours(ctx, [*deps(build_task)[1:], build_task])

@@ -2,8 +2,8 @@
 
 A name is ``<dataset>:<scene>``. Real scenes resolve to ``data_root() / <dataset> / <scene folder>``
 (``MOEGS_DATA``, default ``../shared/data``); ``path=`` overrides the folder. ``synthetic:<name>``
-builds a procedural stand-in through ``moegs.data.synthetic.load_synthetic``. Loaders are imported
-on first use, so listing datasets is cheap.
+builds a procedural stand-in through ``moegs.data.synthetic.load_synthetic``. Loaders (and torch) are
+imported on first use, so listing datasets and scenes is cheap.
 
 Scene folder lookup is case-insensitive and knows the usual aliases (``technicolor:birthday`` ->
 ``Birthday``, ``hypernerf:chicken`` -> ``vrig-chicken``, ``hypernerf:broom`` -> ``broom2``).
@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import importlib
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from torch import Tensor
-
-from moegs.data._io import with_background
-from moegs.data.scene import ImageCache, PointCloud, Scene, View
 from moegs.paths import data_root
+
+if TYPE_CHECKING:
+    from torch import Tensor
+
+    from moegs.data.scene import ImageCache, PointCloud, Scene, View
 
 # dataset -> (module, function, file or folder that marks a scene folder, layout description)
 _DATASETS: dict[str, tuple[str, str, tuple[str, ...], str]] = {
@@ -73,6 +74,15 @@ __all__ = [
     "load_scene",
     "resolve_scene_path",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """``Scene``, ``View``, ``ImageCache``, ``PointCloud`` of ``moegs.data.scene``, imported on first use."""
+    if name in ("ImageCache", "PointCloud", "Scene", "View"):
+        from moegs.data import scene
+
+        return getattr(scene, name)
+    raise AttributeError(f"module 'moegs.data' has no attribute {name!r}")
 
 
 def list_datasets() -> list[str]:
@@ -150,6 +160,8 @@ def load_scene(
             what renders show where no Gaussian covers a pixel. None: the dataset's default.
         **kwargs: passed to the dataset's loader (``resolution_scale``, ``frames`` ...).
     """
+    from moegs.data._io import with_background
+
     dataset, scene = parse_scene_name(name)
     module_name, fn_name, _, layout = _DATASETS[dataset]
     module = importlib.import_module(module_name)

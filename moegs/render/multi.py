@@ -20,7 +20,7 @@ from torch import Tensor
 
 from moegs.camera import Camera
 from moegs.gaussians import GaussianFrame, cat
-from moegs.render import _check_frame, _check_tensor, _render
+from moegs.render.pipeline import _check_frame, _check_tensor, _render
 
 
 @dataclass

@@ -71,7 +71,8 @@ def torch_memory_mb(n: int, res: int, backward: bool) -> float:
 
 def backends() -> list:
     """Every backend that can run here, each a pytest param (unavailable ones skip with the reason)."""
-    from moegs.render import _cpu_kernel, _cuda
+    from moegs.render import _cuda
+    from moegs.render.pipeline import _cpu_kernel
 
     cpu_reason = _cpu_kernel()[1]
     cuda_reason = None if _cuda.is_available() else "needs CUDA and gsplat"

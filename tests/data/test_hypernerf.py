@@ -2,28 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
-from pathlib import Path
 
+import helpers.data_layouts as fx
 import numpy as np
 import pytest
 import torch
 
 from moegs.data.hypernerf import load_hypernerf
-
-
-def _fixtures():
-    name = "moegs_tests_data_fixtures"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("fixtures.py"))
-        sys.modules[name] = module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-fx = _fixtures()
 
 
 def test_vrig_split_poses_times(tmp_path):

@@ -2,30 +2,16 @@
 
 from __future__ import annotations
 
-import importlib.util
 import pickle
-import sys
 import time
-from pathlib import Path
 
+import helpers.data_layouts as fx
 import numpy as np
 import pytest
 import torch
 
 from moegs.data._video import FrameCache, VideoReader
 from moegs.data.n3v import llff_to_w2c, load_n3v, w2c_to_llff
-
-
-def _fixtures():
-    name = "moegs_tests_data_fixtures"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("fixtures.py"))
-        sys.modules[name] = module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-fx = _fixtures()
 
 
 def _close_to(img: torch.Tensor, cam: int, frame: int, tol: float = 8 / 255) -> bool:

@@ -8,7 +8,7 @@ import torch
 
 from moegs import Camera, GaussianFrame
 from moegs.camera import intrinsics
-from moegs.render import _cpu_kernel
+from moegs.render.pipeline import _cpu_kernel
 
 
 def _make_camera(width: int = 24, height: int = 18, *, focal: float | None = None) -> Camera:

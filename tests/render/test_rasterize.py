@@ -10,7 +10,7 @@ import warnings
 import pytest
 import torch
 
-import moegs.render as render
+import moegs.render.pipeline as render
 from moegs import Camera, GaussianFrame
 from moegs.render import _cuda, rasterize
 from moegs.render._torch import ALPHA_MAX, ALPHA_MIN, T_MIN, _composite

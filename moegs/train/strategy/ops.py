@@ -137,6 +137,25 @@ def reset_opacity(params: nn.ParameterDict, optimizers: dict, value: float) -> N
     )
 
 
+def _with_new_source_values(
+    key: str, v: Tensor, sources: Tensor, opacities: Tensor, scales: Tensor
+) -> Tensor:
+    """A copy of parameter ``key``'s rows ``v`` with the MCMC sources' new raw opacity and scale written."""
+    v = v.clone()
+    if key == "opacities":
+        v[sources] = opacities
+    elif key == "scales":
+        v[sources] = scales
+    return v
+
+
+def _zeroed_rows(v: Tensor, rows: Tensor) -> Tensor:
+    """A copy of the optimizer moments ``v`` with ``rows`` zeroed."""
+    v = v.clone()
+    v[rows] = 0
+    return v
+
+
 @torch.no_grad()
 def relocate(
     params: nn.ParameterDict,
@@ -159,18 +178,12 @@ def relocate(
     """
 
     def rows(key: str, v: Tensor) -> Tensor:
-        v = v.clone()
-        if key == "opacities":
-            v[sources] = opacities
-        elif key == "scales":
-            v[sources] = scales
+        v = _with_new_source_values(key, v, sources, opacities, scales)
         v[dead] = v[sources]
         return v
 
     def moments(key: str, v: Tensor) -> Tensor:
-        v = v.clone()
-        v[sources] = 0
-        return v
+        return _zeroed_rows(v, sources)
 
     update_params(params, optimizers, rows, moments)
 
@@ -186,17 +199,11 @@ def sample_add(
     """
 
     def rows(key: str, v: Tensor) -> Tensor:
-        v = v.clone()
-        if key == "opacities":
-            v[sources] = opacities
-        elif key == "scales":
-            v[sources] = scales
+        v = _with_new_source_values(key, v, sources, opacities, scales)
         return torch.cat([v, v[sources]])
 
     def moments(key: str, v: Tensor) -> Tensor:
-        v = v.clone()
-        v[sources] = 0
-        return torch.cat([v, v.new_zeros((len(sources), *v.shape[1:]))])
+        return torch.cat([_zeroed_rows(v, sources), v.new_zeros((len(sources), *v.shape[1:]))])
 
     update_params(params, optimizers, rows, moments)
 
