@@ -21,8 +21,9 @@ It matches the torch reference only to a tolerance. Differences from ``_torch.py
 Never call gsplat with CPU tensors: it then tries to JIT-build its CUDA extension and fails with a
 misleading ``ImportError`` about ``gsplat_cuda.so`` (``specs/cpu_feasibility.md``).
 
-Groups (experts in single-pass rendering) become one gsplat call per group on that group's
-Gaussians, since gsplat keeps one transmittance per image. ``means2d`` is a leaf ``[N, 2]`` whose
+Groups (experts in single-pass rendering) become gsplat's batch dimension: one call renders every
+group, each padded to the largest with invisible Gaussians, and gsplat keeps one transmittance per
+image, so group ``g``'s image equals its own render. ``means2d`` is a leaf ``[N, 2]`` whose
 ``.grad`` is filled during backward from gsplat's own projected means, and ``contrib`` is the
 gradient of the summed image of an all-ones channel with respect to that channel (``sum_pixels w_i``),
 which costs one extra backward through the rasterizer; it is computed only when asked for.
@@ -65,45 +66,24 @@ def check(device: torch.device, dtype: torch.dtype) -> None:
         raise TypeError(f"backend='cuda' (gsplat) needs float32 Gaussians, got {dtype}")
 
 
-def _route_grad(source: Tensor, probe: Tensor, index: Tensor) -> None:
-    """During backward, add the gradient of ``source`` ``[1, n, 2]`` into ``probe.grad[index]``."""
+def _padded_layout(groups: Tensor, num_groups: int) -> tuple[Tensor, int]:
+    """Where each Gaussian goes when the groups are padded to one batch ``[G, M]``.
 
-    def hook(grad: Tensor) -> None:
-        if probe.grad is None:
-            probe.grad = torch.zeros_like(probe)
-        probe.grad.index_add_(0, index, grad.reshape(-1, 2))
-
-    source.register_hook(hook)
-
-
-def _render_group(means, covars, opacities, features, camera, eps2d, antialiased, with_contrib):
-    """One gsplat call on ``n`` Gaussians.
-
-    Returns image ``[H, W, D]``, alpha ``[H, W]``, radii int32 ``[n]``, gsplat's means2d ``[1, n, 2]``
-    and contrib ``[n]`` (or None).
+    Returns ``slot [N]`` (flat index into ``G * M``, stable within a group) and ``M`` (the largest group).
     """
-    import gsplat  # optional dependency, imported only for CUDA tensors
+    counts = torch.bincount(groups, minlength=num_groups)
+    width = max(int(counts.max()), 1)
+    order = torch.argsort(groups, stable=True)
+    starts = torch.cumsum(counts, 0) - counts
+    rank = torch.empty_like(groups)
+    rank[order] = torch.arange(len(groups), device=groups.device) - starts[groups[order]]
+    return groups * width + rank, width
 
-    n = len(means)
-    inputs = (means, covars, opacities, features)
-    keep_graph = torch.is_grad_enabled() and any(t.requires_grad for t in inputs)
-    ones = torch.ones(n, 1, dtype=features.dtype, device=features.device, requires_grad=with_contrib)
-    with torch.set_grad_enabled(keep_graph or with_contrib):
-        image, alpha, meta = gsplat.rasterization(
-            means, None, None, opacities, torch.cat([features, ones], dim=1),
-            camera.world_to_camera[None].to(means), camera.K[None].to(means), camera.width, camera.height,
-            near_plane=camera.near, far_plane=camera.far, eps2d=eps2d, sh_degree=None, packed=False,
-            render_mode="RGB", rasterize_mode="antialiased" if antialiased else "classic", covars=covars,
-        )  # fmt: skip
-        contrib = None
-        if with_contrib:
-            (grad_ones,) = torch.autograd.grad(image[..., -1].sum(), ones, retain_graph=keep_graph)
-            contrib = grad_ones[:, 0]
-    if not keep_graph:
-        image, alpha = image.detach(), alpha.detach()
-    per_axis = meta["radii"].reshape(n, -1)  # [1, n] (gsplat < 1.5) or [1, n, 2]
-    radii = torch.where((per_axis > 0).all(-1), per_axis.amax(-1), 0).to(torch.int32)
-    return image[0, ..., :-1], alpha[0, ..., 0], radii, meta["means2d"], contrib
+
+def _pad(values: Tensor, slot: Tensor, num_groups: int, width: int, fill: Tensor) -> Tensor:
+    """``values [N, ...]`` scattered to ``[G, M, ...]`` at ``slot``; empty slots hold ``fill [...]``."""
+    padded = fill.expand(num_groups * width, *values.shape[1:]).contiguous().index_copy(0, slot, values)
+    return padded.reshape(num_groups, width, *values.shape[1:])
 
 
 def render(
@@ -119,40 +99,59 @@ def render(
     antialiased: bool,
     with_contrib: bool,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor | None]:
-    """Rasterize with gsplat, one call per group.
+    """Rasterize with ONE gsplat call: the groups become its batch dimension.
+
+    Each group is padded to the largest group with Gaussians of zero opacity one unit behind the camera
+    (gsplat culls them before any tile work); every group keeps its own transmittance.
 
     Returns:
         image ``[G, H, W, D]``, alpha ``[G, H, W]``, radii int32 ``[N]``, means2d ``[N, 2]`` (a leaf whose
         ``.grad`` is the screen-space gradient after backward), contrib ``[N]`` or None.
     """
+    import gsplat  # optional dependency, imported only for CUDA tensors
+
     check(means.device, means.dtype)
     n, d = features.shape
     groups = torch.zeros(n, dtype=torch.long, device=means.device) if groups is None else groups
-    radii = torch.zeros(n, dtype=torch.int32, device=means.device)
-    contrib = features.new_zeros(n) if with_contrib else None
-    probe = torch.zeros(n, 2, dtype=means.dtype, device=means.device, requires_grad=True)
-    images, alphas = [], []
-    for g in range(num_groups):
-        index = torch.nonzero(groups == g).squeeze(1)
-        if index.numel() == 0:
-            images.append(features.new_zeros(camera.height, camera.width, d))
-            alphas.append(features.new_zeros(camera.height, camera.width))
-            continue
-        image, alpha, radii_g, means2d, contrib_g = _render_group(
-            means[index],
-            covars[index],
-            opacities[index],
-            features[index],
-            camera,
-            eps2d,
-            antialiased,
-            with_contrib,
-        )
-        radii[index] = radii_g
+    slot, width = _padded_layout(groups, num_groups)
+    behind = torch.linalg.inv(camera.world_to_camera.to(means)) @ means.new_tensor([0.0, 0.0, -1.0, 1.0])
+
+    def pad(values: Tensor, fill: Tensor) -> Tensor:
+        return _pad(values, slot, num_groups, width, fill.to(values))
+
+    ones = torch.ones(n, 1, dtype=features.dtype, device=features.device, requires_grad=with_contrib)
+    inputs = (means, covars, opacities, features)
+    keep_graph = torch.is_grad_enabled() and any(t.requires_grad for t in inputs)
+    with torch.set_grad_enabled(keep_graph or with_contrib):
+        image, alpha, meta = gsplat.rasterization(
+            pad(means, behind[:3]), None, None, pad(opacities, torch.zeros(())),
+            pad(torch.cat([features, ones], dim=1), torch.zeros(())),
+            camera.world_to_camera.to(means).expand(num_groups, 1, 4, 4),
+            camera.K.to(means).expand(num_groups, 1, 3, 3), camera.width, camera.height,
+            near_plane=camera.near, far_plane=camera.far, eps2d=eps2d, sh_degree=None, packed=False,
+            render_mode="RGB", rasterize_mode="antialiased" if antialiased else "classic",
+            covars=pad(covars, torch.eye(3)),
+        )  # fmt: skip
+        contrib = None
         if with_contrib:
-            contrib[index] = contrib_g
-        if means2d.requires_grad:
-            _route_grad(means2d, probe, index)
-        images.append(image)
-        alphas.append(alpha)
-    return torch.stack(images), torch.stack(alphas), radii, probe, contrib
+            (grad_ones,) = torch.autograd.grad(image[..., -1].sum(), ones, retain_graph=keep_graph)
+            contrib = grad_ones[:, 0]
+    if not keep_graph:
+        image, alpha = image.detach(), alpha.detach()
+    per_axis = meta["radii"].reshape(num_groups * width, -1)[slot]  # [N, 1] (gsplat < 1.5) or [N, 2]
+    radii = torch.where((per_axis > 0).all(-1), per_axis.amax(-1), 0).to(torch.int32)
+    probe = torch.zeros(n, 2, dtype=means.dtype, device=means.device, requires_grad=True)
+    if meta["means2d"].requires_grad:
+        _route_grad(meta["means2d"], probe, slot)
+    return image[:, 0, ..., :-1], alpha[:, 0, ..., 0], radii, probe, contrib
+
+
+def _route_grad(source: Tensor, probe: Tensor, slot: Tensor) -> None:
+    """During backward, add rows ``slot`` of the gradient of ``source [G, 1, M, 2]`` to ``probe.grad``."""
+
+    def hook(grad: Tensor) -> None:
+        if probe.grad is None:
+            probe.grad = torch.zeros_like(probe)
+        probe.grad += grad.reshape(-1, 2)[slot]
+
+    source.register_hook(hook)

@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import math
-import sys
-import types
 import warnings
 
 import pytest
 import torch
 
 import moegs.render.pipeline as render
-from moegs import Camera, GaussianFrame
-from moegs.render import _cuda, rasterize
+from moegs import GaussianFrame
+from moegs.render import rasterize
 from moegs.render._torch import ALPHA_MAX, ALPHA_MIN, T_MIN, _composite
 from moegs.render.projection import covariance_3d, project
 
@@ -371,50 +369,7 @@ def test_cpu_backend_matches_torch(channels, antialiased, make_camera, make_fram
         torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-4 * float(b.abs().max()))
 
 
-# -- gsplat on CUDA ---------------------------------------------------------------------------------
-def _fake_gsplat():
-    """A stand-in for ``gsplat`` whose ``rasterization`` runs our torch pipeline (API of gsplat 1.5)."""
-
-    def rasterization(means, quats, scales, opacities, colors, viewmats, Ks, width, height, **kw):
-        assert quats is None and scales is None and kw["packed"] is False and kw["sh_degree"] is None
-        cam = Camera(K=Ks[0], world_to_camera=viewmats[0], width=width, height=height,
-                     near=kw["near_plane"], far=kw["far_plane"])  # fmt: skip
-        antialiased = kw["rasterize_mode"] == "antialiased"
-        proj = project(means, kw["covars"], opacities, cam, eps2d=kw["eps2d"], antialiased=antialiased)
-        means2d = proj.means2d[None]
-        image, alpha, _ = _composite(means2d[0], proj.conics, proj.opacities, colors, proj.depths, proj.radii,
-                                     width, height)  # fmt: skip
-        radii = proj.radii[None, :, None].expand(1, -1, 2)
-        return image, alpha[..., None], {"radii": radii, "means2d": means2d}
-
-    return types.SimpleNamespace(rasterization=rasterization)
-
-
-@pytest.mark.parametrize("grad", [True, False])
-def test_cuda_wrapper_plumbing_with_a_fake_gsplat(grad, monkeypatch, make_camera, make_frame):
-    """Groups, radii, contrib (gradient trick) and the means2d gradient probe of ``_cuda.render``."""
-    monkeypatch.setitem(sys.modules, "gsplat", _fake_gsplat())
-    monkeypatch.setattr(_cuda, "check", lambda device, dtype: None)
-    cam = make_camera(20, 16)
-    frame = make_frame(40, cam, dtype=torch.float64)
-    frame.means.requires_grad_(grad)
-    groups = torch.arange(40) % 3
-    groups[groups == 1] = 2  # group 1 stays empty
-    args = (frame.means, covariance_3d(frame.quats, frame.scales), frame.opacities, frame.colors, cam)
-    kwargs = dict(groups=groups, num_groups=3, eps2d=0.1, antialiased=True, with_contrib=True)
-    got = _cuda.render(*args, **kwargs)
-    ref = render._rasterizer("torch")(*args, **kwargs)
-    for a, b in zip(got[:3] + got[4:], ref[:3] + ref[4:], strict=True):
-        torch.testing.assert_close(a, b)
-    assert got[0].requires_grad == grad
-    if grad:
-        weights = torch.rand(got[0].shape, dtype=torch.float64)
-        ref[3].retain_grad()
-        ((got[0] * weights).sum() + (ref[0] * weights).sum()).backward()
-        torch.testing.assert_close(got[3].grad, ref[3].grad)
-
-
-# -- gsplat on CUDA (skipped without a GPU) -----------------------------------------------------------
+# -- gsplat on CUDA (skipped without a GPU; its CPU twin is test_gsplat_reference.py) ------------------
 @needs_cuda
 def test_cuda_backend_matches_torch_to_tolerance(make_camera, make_frame):
     pytest.importorskip("gsplat", reason="gsplat not installed (pip install 'moegs[cuda]')")

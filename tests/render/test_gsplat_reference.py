@@ -1,0 +1,173 @@
+"""The CUDA path (``backend="cuda"``, ``_cuda.py``) without a GPU: our gsplat glue runs with gsplat's own
+pure-PyTorch kernels on CPU tensors (``helpers.gsplat_reference``), against our torch reference.
+
+Where gsplat's conventions and 3DGS's cannot differ (opacity <= 0.3: alpha never reaches either clamp and
+every Gaussian's 1/255 footprint lies inside both screen radii), the two agree to float32 rounding:
+images, alphas, depths, per-Gaussian statistics and every gradient. At full opacity they differ only by
+the documented clamps (``_cuda.py`` docstring). Single pass on CUDA is one batched gsplat call and
+equals K separate renders.
+"""
+
+from __future__ import annotations
+
+import helpers.gsplat_reference as gsplat_reference
+import pytest
+import torch
+
+from moegs import Camera, GaussianFrame
+from moegs.camera import intrinsics, look_at
+from moegs.render import _cuda, rasterize, rasterize_multi
+
+FIELDS = ("means", "quats", "scales", "opacities")
+
+
+@pytest.fixture
+def gsplat_on_cpu(monkeypatch):
+    """gsplat patched to its torch kernels; ``_cuda`` accepts CPU tensors (dtype still checked)."""
+    module = gsplat_reference.install(monkeypatch)
+    check = _cuda.check
+    monkeypatch.setattr(_cuda, "check", lambda device, dtype: check(torch.device("cuda"), dtype))
+    monkeypatch.setattr(_cuda, "is_installed", lambda: True)
+    return module
+
+
+def _camera(width: int = 40, height: int = 30) -> Camera:
+    """Off-axis principal point, a rotated and translated pose looking at the origin."""
+    K = intrinsics(1.1 * width, 1.1 * width, 0.45 * width, 0.55 * height)
+    w2c = look_at(torch.tensor([1.2, -0.6, -3.5]), torch.zeros(3))
+    return Camera(K=K, world_to_camera=w2c, width=width, height=height, near=0.2, far=20.0)
+
+
+def _frame(
+    n: int, *, opacity: tuple[float, float], sh_degree: int | None = 1, seed: int = 0
+) -> GaussianFrame:
+    """``n`` Gaussians around the origin (inside ``_camera``'s view), colours as SH of ``sh_degree``."""
+    gen = torch.Generator().manual_seed(seed)
+    means = 1.4 * (torch.rand(n, 3, generator=gen) - 0.5)
+    quats = torch.nn.functional.normalize(torch.randn(n, 4, generator=gen), dim=-1)
+    scales = 0.03 + 0.06 * torch.rand(n, 3, generator=gen)
+    opacities = opacity[0] + (opacity[1] - opacity[0]) * torch.rand(n, generator=gen)
+    if sh_degree is None:
+        return GaussianFrame(means, quats, scales, opacities, colors=torch.rand(n, 3, generator=gen))
+    sh = 0.4 * torch.randn(n, (sh_degree + 1) ** 2, 3, generator=gen)
+    return GaussianFrame(means, quats, scales, opacities, sh=sh)
+
+
+def _fields(frame: GaussianFrame) -> tuple[str, ...]:
+    return (*FIELDS, "sh" if frame.sh is not None else "colors")
+
+
+def _render_with_grads(render, frames):
+    """``(outputs, grads)``: ``render`` of fresh leaf copies of ``frames``, then one fixed backward."""
+    leaves = [
+        GaussianFrame(**{k: getattr(f, k).detach().clone().requires_grad_(True) for k in _fields(f)})
+        for f in frames
+    ]
+    out = render(leaves)
+    images = out.images if hasattr(out, "images") else out.image
+    alphas = out.alphas if hasattr(out, "alphas") else out.alpha
+    depths = out.depths if hasattr(out, "depths") else out.depth
+    weights = torch.linspace(0.1, 1.0, images.shape[-3:].numel()).view(images.shape[-3:])  # same per expert
+    ((images * weights).sum() + 0.3 * alphas.sum() + 0.05 * depths.sum()).backward()
+    grads = [getattr(f, k).grad for f in leaves for k in _fields(f)]
+    return out, grads + [out.info["means2d"].grad]
+
+
+def _assert_grads_close(got, ref, rel):
+    for a, b in zip(got, ref, strict=True):
+        torch.testing.assert_close(a, b, rtol=rel, atol=rel * float(b.abs().max()))
+
+
+@pytest.mark.parametrize("antialiased", [False, True])
+def test_glue_matches_torch_reference_where_conventions_agree(gsplat_on_cpu, antialiased):
+    cam = _camera()
+    frame = _frame(40, opacity=(0.05, 0.3))
+    background = torch.tensor([0.2, 0.5, 0.9])
+
+    def render(backend):
+        return lambda fs: rasterize(
+            fs[0], cam, background=background, antialiased=antialiased, return_stats=True, backend=backend
+        )
+
+    ref, ref_grads = _render_with_grads(render("torch"), [frame])
+    got, got_grads = _render_with_grads(render("cuda"), [frame])
+    assert got.info["backend"] == "cuda"
+    for a, b in ((got.image, ref.image), (got.alpha, ref.alpha), (got.depth, ref.depth)):
+        torch.testing.assert_close(a, b, atol=2e-5, rtol=0)
+    assert ref.alpha.amax() > 0.5  # overlapping splats, not a sparse scene
+    assert torch.equal(got.info["visible"], ref.info["visible"]) and ref.info["visible"].sum() > 30
+    torch.testing.assert_close(got.info["contrib"], ref.info["contrib"], atol=1e-4, rtol=1e-4)
+    _assert_grads_close(got_grads, ref_grads, rel=2e-3)
+
+
+def test_glue_at_full_opacity_differs_only_by_the_documented_clamps(gsplat_on_cpu):
+    cam = _camera()
+    frame = _frame(60, opacity=(0.3, 1.0), sh_degree=None)
+    ref = rasterize(frame, cam, backend="torch")
+    got = rasterize(frame, cam, backend="cuda")
+    diff = (got.image - ref.image).abs()
+    assert float(diff.mean()) < 2e-3 and float(diff.max()) < 0.05
+    torch.testing.assert_close(got.alpha, ref.alpha, atol=0.02, rtol=0)
+
+
+def test_glue_culls_like_the_reference(gsplat_on_cpu):
+    cam = _camera(24, 18)
+    frame = _frame(12, opacity=(0.1, 0.3), sh_degree=None)
+    centre = torch.linalg.inv(cam.world_to_camera)[:3, 3]
+    moved = frame.means.clone()
+    moved[0] = centre - 2.0 * (torch.zeros(3) - centre)  # behind the camera
+    moved[1] = torch.tensor([40.0, 0.0, 0.0])  # far outside the image
+    frame = GaussianFrame(moved, frame.quats, frame.scales, frame.opacities, colors=frame.colors)
+    got = rasterize(frame, cam, return_stats=True, backend="cuda")
+    ref = rasterize(frame, cam, return_stats=True, backend="torch")
+    assert not got.info["visible"][:2].any()
+    assert torch.equal(got.info["visible"], ref.info["visible"])
+
+
+def test_single_pass_is_one_gsplat_call_equal_to_separate_renders(gsplat_on_cpu, monkeypatch):
+    cam = _camera(32, 24)
+    frames = [_frame(n, opacity=(0.05, 0.6), seed=s) for s, n in ((1, 25), (2, 9), (3, 17))]
+    calls = []
+    rasterization = gsplat_on_cpu.rasterization
+    monkeypatch.setattr(
+        gsplat_on_cpu, "rasterization", lambda *a, **k: calls.append(1) or rasterization(*a, **k)
+    )
+    backgrounds = torch.tensor([[1.0, 1.0, 1.0], [0.0, 0.0, 0.0], [0.3, 0.6, 0.1]])
+
+    multi, multi_grads = _render_with_grads(
+        lambda fs: rasterize_multi(fs, cam, backgrounds=backgrounds, return_stats=True, backend="cuda"),
+        frames,
+    )
+    assert len(calls) == 1
+    separate = [
+        _render_with_grads(
+            lambda fs, k=k: rasterize(
+                fs[0], cam, background=backgrounds[k], return_stats=True, backend="cuda"
+            ),
+            [f],
+        )
+        for k, f in enumerate(frames)
+    ]
+    assert len(calls) == 4
+    sizes = [len(f) for f in frames]
+    for k, (one, _) in enumerate(separate):
+        torch.testing.assert_close(multi.images[k], one.image, atol=1e-6, rtol=0)
+        torch.testing.assert_close(multi.alphas[k], one.alpha, atol=1e-6, rtol=0)
+        torch.testing.assert_close(multi.depths[k], one.depth, atol=1e-5, rtol=0)
+    for key in ("radii", "contrib"):
+        torch.testing.assert_close(multi.info[key], torch.cat([one.info[key] for one, _ in separate]))
+    means2d_grads = torch.cat([grads[-1] for _, grads in separate])
+    field_grads = [g for _, grads in separate for g in grads[:-1]]
+    _assert_grads_close(multi_grads, field_grads + [means2d_grads], rel=1e-5)
+    torch_multi = rasterize_multi(frames, cam, backgrounds=backgrounds, backend="torch")
+    torch.testing.assert_close(multi.images, torch_multi.images, atol=0.02, rtol=0)
+    assert sizes == [25, 9, 17]
+
+
+def test_single_pass_with_an_empty_expert(gsplat_on_cpu):
+    cam = _camera(24, 18)
+    full = _frame(10, opacity=(0.1, 0.3), sh_degree=None)
+    empty = GaussianFrame(*(getattr(full, k)[:0] for k in FIELDS), colors=full.colors[:0])
+    out = rasterize_multi([full, empty], cam, return_stats=True, backend="cuda")
+    torch.testing.assert_close(out.images[0], rasterize(full, cam, backend="cuda").image, atol=1e-6, rtol=0)
+    assert float(out.alphas[1].abs().max()) == 0.0 and out.info["radii"].shape == (10,)
