@@ -32,5 +32,12 @@ def require_data(relative: str, what: str) -> Path:
 
 
 def cache_root() -> Path:
-    """Writable cache for generated scenes, checkpoints and results (``$MOEGS_CACHE`` or ``.cache/``)."""
-    return Path(os.environ.get("MOEGS_CACHE", _REPO / ".cache")).expanduser()
+    """Writable cache for generated scenes, decoded images and test runs: ``$MOEGS_CACHE``, else ``.cache/``
+    in a source checkout, else the user's cache folder (``$XDG_CACHE_HOME/moegs``, ``~/.cache/moegs``), never
+    the install tree."""
+    env = os.environ.get("MOEGS_CACHE")
+    if env:
+        return Path(env).expanduser()
+    if (_REPO / "pyproject.toml").is_file():
+        return _REPO / ".cache"
+    return Path(os.environ.get("XDG_CACHE_HOME") or "~/.cache").expanduser() / "moegs"

@@ -20,6 +20,7 @@ from PIL import Image, UnidentifiedImageError
 from torch import Tensor
 
 from moegs.camera import Camera
+from moegs.data import decoded
 
 RESAMPLE = {
     "nearest": Image.Resampling.NEAREST,
@@ -217,23 +218,33 @@ def load_rgb(
 
     Returns ``[H, W, 3]`` float32 in [0, 1]. RGBA is composited at native resolution and the
     composite is resized (linear order; the NeRF code resizes RGBA first, a sub-1e-3 difference).
+    Results are kept on disk between processes (``moegs.data.decoded``).
     """
-    arr = read_image(path)
-    check_size(arr, native, path)
-    if arr.shape[-1] == 4:
-        return resize(to_rgb(arr, background), size, method)
-    return to_rgb(resize_uint8(arr, size, method), background)
+
+    def load() -> Tensor:
+        arr = read_image(path)
+        check_size(arr, native, path)
+        if arr.shape[-1] == 4:
+            return resize(to_rgb(arr, background), size, method)
+        return to_rgb(resize_uint8(arr, size, method), background)
+
+    args = (tuple(native), tuple(size), tuple(background.tolist()), method)
+    return decoded.cached("rgb", path, args, (size[1], size[0], 3), load)
 
 
 def load_alpha_mask(path: Path, native: tuple[int, int], size: tuple[int, int], method: str) -> Tensor:
     """Object mask ``[H, W]`` float32 of an RGBA image: its alpha resized to ``size``, above 0.5 (an
-    RGB image has no alpha: ``ValueError`` naming the file)."""
-    arr = read_image(path)
-    check_size(arr, native, path)
-    if arr.shape[-1] != 4:
-        raise ValueError(f"{path}: no alpha channel, so no object mask (expected an RGBA PNG)")
-    alpha = resize(torch.from_numpy(arr[..., 3:].astype(np.float32) / 255.0), size, method)[..., 0]
-    return (alpha > 0.5).float()
+    RGB image has no alpha: ``ValueError`` naming the file). Kept on disk like ``load_rgb``."""
+
+    def load() -> Tensor:
+        arr = read_image(path)
+        check_size(arr, native, path)
+        if arr.shape[-1] != 4:
+            raise ValueError(f"{path}: no alpha channel, so no object mask (expected an RGBA PNG)")
+        alpha = resize(torch.from_numpy(arr[..., 3:].astype(np.float32) / 255.0), size, method)[..., 0]
+        return (alpha > 0.5).float()
+
+    return decoded.cached("alpha-mask", path, (tuple(native), tuple(size), method), (size[1], size[0]), load)
 
 
 # -- scene-level quantities -------------------------------------------------------------------------

@@ -17,10 +17,14 @@ from moegs.camera import Camera
 
 
 class ImageCache:
-    """Bounded LRU cache of decoded images, shared by all views of a scene."""
+    """LRU cache of decoded images, shared by all views of a scene, bounded by ``max_bytes`` (default
+    1 GiB: every training view of the quick and standard presets stays resident) and optionally by
+    ``max_items``; 0 for either keeps nothing."""
 
-    def __init__(self, max_items: int = 256) -> None:
+    def __init__(self, max_items: int | None = None, max_bytes: int = 1 << 30) -> None:
         self.max_items = max_items
+        self.max_bytes = max_bytes
+        self.bytes = 0
         self._items: OrderedDict[str, Tensor] = OrderedDict()
 
     def get(self, key: str, load: Callable[[], Tensor]) -> Tensor:
@@ -28,10 +32,16 @@ class ImageCache:
             self._items.move_to_end(key)
             return self._items[key]
         value = load()
-        if self.max_items > 0:
-            self._items[key] = value
-            if len(self._items) > self.max_items:
-                self._items.popitem(last=False)
+        size = value.numel() * value.element_size()
+        if self.max_items == 0 or size > self.max_bytes:
+            return value
+        self._items[key] = value
+        self.bytes += size
+        too_many = self.max_items is not None and len(self._items) > self.max_items
+        while self.bytes > self.max_bytes or too_many:
+            _, old = self._items.popitem(last=False)
+            self.bytes -= old.numel() * old.element_size()
+            too_many = self.max_items is not None and len(self._items) > self.max_items
         return value
 
     def __len__(self) -> int:

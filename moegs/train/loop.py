@@ -68,8 +68,9 @@ def _check_finite(step: int, what: str, tensors: dict[str, torch.Tensor | None],
             )
 
 
-class _Run:
-    """Mutable training state of one call to :func:`train`."""
+class TrainingRun:
+    """Mutable state of one training run; :func:`train` drives it, ``iteration(step)`` runs one step
+    (``bench.profile`` times those steps directly)."""
 
     def __init__(self, expert: Expert, scene: Scene, config: TrainConfig, loss: ViewLoss | None) -> None:
         self.expert, self.scene, self.config = expert, scene, config
@@ -235,7 +236,7 @@ def train(
     out = Path(out_dir) if out_dir is not None else None
     ckpt = out / CHECKPOINT_NAME if out is not None else None
     with stop_requests(out is not None) as stop:  # a signal during set-up stops before step 1
-        run = _Run(expert, scene, config, loss)
+        run = TrainingRun(expert, scene, config, loss)
         torch.manual_seed(config.seed)
         resumed_from = None
         if resume and ckpt is not None and ckpt.is_file():

@@ -1,0 +1,45 @@
+"""``python -m bench.profile``: exclusive timers and the training-step breakdown on a generated scene."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+
+from bench import profile
+
+
+def test_nested_time_goes_to_the_inner_category_only():
+    timers = profile.ExclusiveTimers()
+    with timers.timing("other"):
+        time.sleep(0.02)
+        with timers.timing("fields"):
+            time.sleep(0.05)
+        time.sleep(0.02)
+    assert 0.045 < timers.seconds["fields"] < 0.09
+    assert 0.035 < timers.seconds["other"] < 0.07
+
+
+def test_breakdown_covers_the_step_and_restores_what_it_wrapped(tmp_path, capsys):
+    from moegs.data.scene import View
+    from moegs.render import pipeline
+
+    before = (View.image, pipeline.project, pipeline._composite)
+    out = tmp_path / "profile.json"
+    assert profile.main(["--expert", "static", "--scene", "synthetic:dnerf_like", "--steps", "4",
+                         "--warmup", "2", "--json", str(out)]) == 0  # fmt: skip
+    assert (View.image, pipeline.project, pipeline._composite) == before
+    (result,) = json.loads(out.read_text())
+    assert set(result["share"]) == set(profile.CATEGORIES) and result["steps"] == [3, 6]
+    assert sum(result["share"].values()) == pytest.approx(1.0, abs=0.02)
+    assert result["share"]["raster fwd"] > 0 and result["share"]["optimizer"] > 0
+    assert result["flops_per_step"]["rasterizer"] > 0 and result["floor_ms"] > 0
+    printed = capsys.readouterr().out
+    assert "raster bwd" in printed and "the floor is" in printed
+
+
+def test_bad_arguments_exit_2_naming_them(capsys):
+    with pytest.raises(SystemExit) as err:
+        profile.main(["--expert", "static", "--scene", "synthetic:dnerf_like", "--steps", "0"])
+    assert err.value.code == 2 and "steps >= 1" in capsys.readouterr().err

@@ -1,0 +1,106 @@
+"""Decoded images kept on disk between processes (``moegs.data.decoded``) and in memory (``ImageCache``)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from moegs import paths
+from moegs.data import _io, decoded
+from moegs.data.scene import ImageCache
+
+WHITE = torch.ones(3)
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch) -> Path:
+    monkeypatch.setenv("MOEGS_CACHE", str(tmp_path / "cache"))
+    monkeypatch.delenv("MOEGS_DECODED_CACHE", raising=False)
+    return tmp_path / "cache" / "decoded"
+
+
+@pytest.fixture
+def rgba(tmp_path) -> Path:
+    rng = np.random.default_rng(0)
+    path = tmp_path / "r_000.png"
+    Image.fromarray(rng.integers(0, 256, (64, 48, 4), dtype=np.uint8), "RGBA").save(path)
+    return path
+
+
+def _entries(cache: Path) -> list[Path]:
+    return sorted(cache.rglob("*.npy")) if cache.exists() else []
+
+
+def test_second_load_reads_the_stored_result_bit_for_bit(cache, rgba, monkeypatch):
+    with monkeypatch.context() as m:
+        m.setenv("MOEGS_DECODED_CACHE", "0")
+        fresh = _io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic")
+    assert _entries(cache) == []
+    first = _io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic")
+    assert len(_entries(cache)) == 1
+
+    def no_decoding(path):
+        raise AssertionError("decoded again")
+
+    monkeypatch.setattr(_io, "read_image", no_decoding)
+    second = _io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic")
+    assert second.shape == (32, 24, 3) and torch.equal(first, fresh) and torch.equal(second, fresh)
+
+
+def test_every_argument_and_the_file_itself_are_in_the_key(cache, rgba):
+    _io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic")
+    _io.load_rgb(rgba, (48, 64), (24, 32), torch.zeros(3), "bicubic")
+    _io.load_rgb(rgba, (48, 64), (12, 16), WHITE, "bicubic")
+    _io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "area")
+    _io.load_alpha_mask(rgba, (48, 64), (24, 32), "bicubic")
+    assert len(_entries(cache)) == 5
+    stat = rgba.stat()
+    os.utime(rgba, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))  # the file changed
+    _io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic")
+    assert len(_entries(cache)) == 6
+
+
+def test_damaged_entry_is_decoded_again_and_replaced(cache, rgba):
+    good = _io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic")
+    (entry,) = _entries(cache)
+    entry.write_bytes(entry.read_bytes()[:100])  # truncated
+    torch.testing.assert_close(_io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic"), good, rtol=0, atol=0)
+    np.save(entry, np.zeros((3, 3), np.float32))  # wrong shape
+    torch.testing.assert_close(_io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic"), good, rtol=0, atol=0)
+    assert np.load(entry).shape == (32, 24, 3)
+
+
+def test_large_images_and_missing_files_bypass_the_cache(cache, rgba, monkeypatch):
+    monkeypatch.setattr(decoded, "MAX_PIXELS", 100)
+    _io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic")
+    assert _entries(cache) == []
+    with pytest.raises(FileNotFoundError, match="nope.png"):
+        _io.load_rgb(rgba.with_name("nope.png"), (48, 64), (24, 32), WHITE, "bicubic")
+
+
+def test_cache_root_is_never_the_install_tree(tmp_path, monkeypatch):
+    monkeypatch.delenv("MOEGS_CACHE", raising=False)
+    monkeypatch.setattr(paths, "_REPO", tmp_path / "site-packages")  # an installed copy: no pyproject.toml
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert paths.cache_root() == tmp_path / "xdg" / "moegs"
+
+
+def test_memory_cache_is_bounded_by_bytes_and_items():
+    def image(value: float) -> torch.Tensor:
+        return torch.full((10, 10, 3), float(value))  # 1200 bytes
+
+    cache = ImageCache(max_bytes=3000)
+    for k in range(3):
+        cache.get(str(k), lambda k=k: image(k))
+    assert len(cache) == 2 and cache.bytes == 2400  # "0" was evicted, least recently used
+    assert float(cache.get("2", lambda: image(-1))[0, 0, 0]) == 2.0  # a hit does not load
+    items = ImageCache(max_items=1)
+    items.get("a", lambda: image(0))
+    items.get("b", lambda: image(1))
+    assert len(items) == 1 and items.bytes == 1200
+    assert len(ImageCache(max_items=0).get("a", lambda: image(0))) == 10
