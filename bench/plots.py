@@ -100,11 +100,14 @@ def limitations(values: SpecValues, out_dir: Path) -> list[Path]:
     cbar = fig.colorbar(im, ax=axes[1], ticks=range(len(names)))
     cbar.ax.set_yticklabels(names, fontsize=7)
     axes[1].set_title("(b) best expert per pixel (lowest L1)", fontsize=9)
+    dynamic = "psnr_dynamic" in data and len(data["psnr_dynamic"]) == len(data["times"])
+    curves = data["psnr_dynamic"] if dynamic else data["psnr"]
     for k, name in enumerate(names):
-        axes[2].plot(data["times"], data["psnr"][:, k], marker="o", ms=3, label=name, color=cmap(k))
+        axes[2].plot(data["times"], curves[:, k], marker="o", ms=3, label=name, color=cmap(k))
     axes[2].set_xlabel("normalised time")
     axes[2].set_ylabel("PSNR (dB)")
-    axes[2].set_title("(c) per-frame PSNR of each expert", fontsize=9)
+    region = "dynamic-region" if dynamic else "full-image"
+    axes[2].set_title(f"(c) per-frame {region} PSNR of each expert", fontsize=9)
     axes[2].legend(fontsize=7)
     for ax in axes[:2]:
         ax.axis("off")

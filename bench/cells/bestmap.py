@@ -2,10 +2,12 @@
 
 Params: ``experts``. Renders every expert on the evaluation views:
 
-* spatial: on the view in the middle of the sequence, the per-pixel winner (lowest L1 error) and
-  ``winners`` = how many experts win at least 5 % of the pixels;
-* temporal: per time step the expert with the best PSNR (averaged over the views of that time) and
-  ``switches`` = how often the winner changes along time.
+* spatial: on the view in the middle of the sequence, the per-pixel winner (lowest L1 error),
+  ``winners`` = how many experts win at least 5 % of the pixels, the winner map's spatial coherence and
+  each expert's share of the dynamic and of the static pixels (when the scene has masks);
+* temporal: per time step the expert with the best PSNR on the **dynamic region** (averaged over the
+  views of that time; the full image when the scene has no masks) and ``switches`` = how often that
+  winner changes along time; ``switches_full`` is the same on full-image PSNR.
 """
 
 from __future__ import annotations
@@ -32,31 +34,39 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     import torch
 
     from moegs.metrics import psnr
+    from moegs.moe.model import region_shares, winner_coherence
     from moegs.train.evaluate import eval_views
 
     scene = ctx.scene(task, shared_background(ctx, artifacts(task)))
     names = list(task.params["experts"])
     renders = [expert_renderer(load_trained_expert(ctx, b, scene), scene.background) for b in artifacts(task)]
     views = sorted(eval_views(scene.test, ctx.preset.test_views), key=lambda v: v.camera.time)
-    per_time: dict[float, list[list[float]]] = {}
+    per_time: dict[float, list[list[float]]] = {}  # full-image PSNR per view and expert
+    per_time_dynamic: dict[float, list[list[float]]] = {}
     mid = views[len(views) // 2]
     spatial = None
     with torch.no_grad():
         for view in views:
-            gt = view.image()
-            images = [r(view.camera).detach() for r in renders]
-            per_time.setdefault(round(float(view.camera.time), 6), []).append(
-                [float(psnr(img.clamp(0, 1), gt)) for img in images]
-            )
+            gt, mask = view.image(), view.mask()
+            images = [r(view.camera).detach().clamp(0, 1) for r in renders]
+            t = round(float(view.camera.time), 6)
+            per_time.setdefault(t, []).append([float(psnr(img, gt)) for img in images])
+            if mask is not None and bool((mask > 0.5).any()):
+                dynamic = (mask > 0.5).float()
+                per_time_dynamic.setdefault(t, []).append([float(psnr(img, gt, dynamic)) for img in images])
             if view is mid:
                 errors = torch.stack([(img - gt).abs().mean(-1) for img in images])  # [K, H, W]
-                spatial = (errors, gt, torch.stack(images))
-    errors, gt, images = spatial
+                spatial = (errors, gt, torch.stack(images), mask)
+    errors, gt, images, mask = spatial
     winner = errors.argmin(0)
     shares = torch.bincount(winner.flatten(), minlength=len(names)).float() / winner.numel()
+    regions = region_shares(-errors, mask) if mask is not None else None
     times = sorted(per_time)
     mean_psnr = np.array([np.mean(per_time[t], axis=0) for t in times])  # [T, K]
-    best = mean_psnr.argmax(1)
+    by_region = len(per_time_dynamic) == len(per_time)  # every time step has dynamic pixels
+    mean_dynamic = np.array([np.mean(per_time_dynamic[t], axis=0) for t in times]) if by_region else None
+    best = (mean_dynamic if by_region else mean_psnr).argmax(1)
+    best_full = mean_psnr.argmax(1)
     switches = int((best[1:] != best[:-1]).sum())
     files_dir = ctx.workspace.files_dir(ctx.task)
     files_dir.mkdir(parents=True, exist_ok=True)
@@ -69,13 +79,22 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
         images=images.clamp(0, 1).numpy(),
         times=np.array(times),
         psnr=mean_psnr,
+        psnr_dynamic=mean_dynamic if by_region else np.zeros((0, len(names))),
         view=str(mid.key),
     )
     return {
-        "metrics": {"winners": int((shares >= MIN_SHARE).sum()), "switches": switches},
+        "metrics": {
+            "winners": int((shares >= MIN_SHARE).sum()),
+            "switches": switches,
+            "switches_full": int((best_full[1:] != best_full[:-1]).sum()),
+            "coherence": winner_coherence(-errors),
+        },
         "details": {
             "shares": dict(zip(names, shares.tolist(), strict=True)),
+            "region_shares": regions,
+            "temporal_region": "dynamic" if by_region else "full",
             "best_per_time": [names[i] for i in best],
+            "best_per_time_full": [names[i] for i in best_full],
             "view": mid.key,
             "min_share": MIN_SHARE,
         },

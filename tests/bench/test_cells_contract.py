@@ -74,3 +74,14 @@ def test_distill_cell(ctx):
 def test_mdc_cell(ctx, params):
     out = _run(ctx, "mdc", params)
     assert out["metrics"]["mdc"] >= 0 and out["details"]["cameras"] >= 2
+
+
+def test_bestmap_cell_picks_winners_over_time_on_the_dynamic_region(ctx):
+    out = _run(ctx, "bestmap", {"experts": EXPERTS})
+    m, d = out["metrics"], out["details"]
+    assert d["temporal_region"] == "dynamic"  # D-NeRF: the object alpha is the dynamic region
+    assert len(d["best_per_time"]) == len(d["best_per_time_full"]) > 1
+    assert set(d["best_per_time"]) <= set(EXPERTS) and 0 <= m["switches"] < len(d["best_per_time"])
+    assert 0.0 <= m["coherence"] <= 1.0 and 1 <= m["winners"] <= 2
+    for region in ("dynamic", "static"):
+        assert sum(d["region_shares"][region]) == pytest.approx(1.0)
