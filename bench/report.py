@@ -218,6 +218,31 @@ def signals_markdown(signals: dict[str, Any]) -> list[str]:
     return lines + [""]
 
 
+def convergence_studies(base: Path) -> list[tuple[Path, Path]]:
+    """``(figure, table)`` of each ``python -m bench.convergence`` study under ``base/convergence``."""
+    folder = base / "convergence"
+    return [
+        (md.with_suffix(".png"), md) for md in sorted(folder.glob("*.md")) if md.with_suffix(".png").is_file()
+    ]
+
+
+CONVERGENCE_NOTE = (
+    "Real scenes trained beyond the quick preset (`python -m bench.convergence`): quick schedules scaled "
+    "to N iterations, every test view; 'upsampled to native' renders at the training resolution and "
+    "upsamples (bicubic) to the dataset's resolution. Not part of the tables above."
+)
+
+
+def convergence_markdown(base: Path) -> list[str]:
+    studies = convergence_studies(base)
+    if not studies:
+        return []
+    lines = ["## Convergence of the real scenes", "", CONVERGENCE_NOTE, ""]
+    for figure, table in studies:
+        lines += [f"![{figure.stem}](convergence/{figure.name})", "", table.read_text().strip(), ""]
+    return lines
+
+
 def render_markdown(
     reports: list[SpecReport], header: dict[str, Any], base: Path, signals: dict[str, Any] | None = None
 ) -> str:
@@ -246,6 +271,7 @@ def render_markdown(
             "",
         ]
     lines += signals_markdown(signals or {})
+    lines += convergence_markdown(base)
     lines += [
         "## Summary",
         "",
@@ -306,7 +332,7 @@ def _img(path: str) -> str:
     return f'<img src="data:image/png;base64,{data}" alt="{name}" style="max-width:100%">'
 
 
-def render_html(reports: list[SpecReport], header: dict[str, Any]) -> str:
+def render_html(reports: list[SpecReport], header: dict[str, Any], base: Path | None = None) -> str:
     e = html.escape
     h = header
     out = [
@@ -330,6 +356,11 @@ def render_html(reports: list[SpecReport], header: dict[str, Any]) -> str:
             f"<td>{e(_claim_counts(rep))}</td></tr>"
         )
     out.append("</table>")
+    studies = convergence_studies(base) if base is not None else []
+    if studies:
+        out += ["<h2>Convergence of the real scenes</h2>", f"<p>{e(CONVERGENCE_NOTE)}</p>"]
+        for figure, table in studies:
+            out += [_img(str(figure)), f"<pre>{e(table.read_text())}</pre>"]
     for rep in reports:
         out += [f"<h2 id='{rep.id}'>{rep.id}: {e(rep.title)}</h2>", f"<p><b>Status:</b> {e(rep.status)}</p>"]
         if rep.scenes:
@@ -397,7 +428,7 @@ def write_report(
     signals = signals or {}
     paths = {"md": out_dir / "REPORT.md", "html": out_dir / "REPORT.html", "json": out_dir / "summary.json"}
     paths["md"].write_text(render_markdown(reports, header, out_dir, signals), encoding="utf-8")
-    paths["html"].write_text(render_html(reports, header), encoding="utf-8")
+    paths["html"].write_text(render_html(reports, header, out_dir), encoding="utf-8")
     summary = {
         "header": header,
         "noise": signals.get("noise", {}),

@@ -1,0 +1,270 @@
+"""Convergence study: test PSNR of experts against training length and CPU time, per resolution.
+
+    python -m bench.convergence --scene dnerf:mutant --experts deformable,grid4d \\
+        --iterations 600,1500,3000,6000 --resolutions 0.125,0.25 [--limit 0.25=3000]
+
+Each cell trains one expert on the scene with the **quick recipe's schedules scaled to N iterations**
+(``scaled_overrides``; N = 600 is exactly the quick preset) at one resolution, then scores it on every
+test view: full image, dynamic and static regions and, below full resolution, the render upsampled
+(bicubic) to the dataset's native resolution against the native ground truth, as a paper-resolution
+figure. Cells are cached as JSON under ``--workspace`` (atomic writes): an interrupted study resumes
+and a finished cell is never recomputed unless ``--force``. The figure (PSNR against iterations and
+against minutes on this machine) and a markdown table go to ``--out``.
+
+Scaling rule: every iteration-valued field of the quick reduction that places an event or a decay in
+the run (``SCHEDULE_FIELDS``: static phase, warm-ups, lr decay lengths, densification window, opacity
+reset period) is multiplied by ``N / 600``; per-step intervals (``densify_every``) keep the quick value,
+so a longer run densifies more often, closer to the original's event count; model sizes stay quick's.
+Only experts with a ``SCHEDULE_FIELDS`` row can be studied.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+QUICK_ITERATIONS = 600  # moegs.experts.static.QUICK_ITERATIONS (checked by tests)
+ADC_WINDOW = ("strategy.densify_from", "strategy.densify_until", "strategy.reset_every")
+SCHEDULE_FIELDS: dict[str, tuple[str, ...]] = {
+    "static": ("means_lr_max_steps", *ADC_WINDOW),
+    # warm_up: static phase; time_noise_steps: AST annealing; deform_lr_max_steps is the paper's (>= N)
+    "deformable": ("warm_up", "time_noise_steps", "means_lr_max_steps", *ADC_WINDOW),
+    "grid4d": ("warm_up", "means_lr_max_steps", *ADC_WINDOW),
+}
+"""Quick-reduction fields scaled with the run length, per expert (the keys of ``quick_fields``)."""
+
+
+def scaled_overrides(expert: str, scene: str, iterations: int) -> dict[str, Any]:
+    """Resolver overrides that stretch the quick recipe of ``expert`` on ``scene`` to ``iterations``."""
+    from moegs.recipes import config_for
+
+    if expert not in SCHEDULE_FIELDS:
+        raise ValueError(
+            f"no schedule table for expert {expert!r} (bench.convergence.SCHEDULE_FIELDS has "
+            f"{', '.join(SCHEDULE_FIELDS)})"
+        )
+    if iterations < 1:
+        raise ValueError(f"iterations must be >= 1, got {iterations}")
+    quick = config_for(expert, scene, "quick").reductions
+    ratio = iterations / QUICK_ITERATIONS
+    out: dict[str, Any] = {"train.iterations": iterations}
+    for key in SCHEDULE_FIELDS[expert]:
+        out[key] = max(1, round(quick[key] * ratio))
+    return out
+
+
+def _psnr_upsampled(expert: Any, scene: Any, native: Any) -> float:
+    """Mean PSNR of the renders upsampled (bicubic) to the native test images ``native.test``."""
+    import torch
+    import torch.nn.functional as F
+
+    from moegs.metrics import psnr
+    from moegs.train.evaluate import render_view
+
+    values = []
+    with torch.no_grad():
+        for view, full in zip(scene.test, native.test, strict=True):
+            rgb = render_view(expert, view.camera, scene.background)[0]
+            gt = full.image()
+            up = F.interpolate(
+                rgb.permute(2, 0, 1)[None], size=gt.shape[:2], mode="bicubic", align_corners=False
+            )
+            values.append(float(psnr(up[0].permute(1, 2, 0).clamp(0, 1), gt)))
+    return sum(values) / len(values)
+
+
+def run_cell(expert: str, scene_name: str, resolution: float, iterations: int, progress: bool) -> dict:
+    """Train and score one cell (see the module docstring); a JSON-ready record."""
+    from moegs.data import load_scene
+    from moegs.recipes import config_for
+    from moegs.train.entry import train_recipe
+
+    overrides = scaled_overrides(expert, scene_name, iterations)
+    overrides.update(
+        {"train.resolution_scale": resolution, "train.max_eval_views": None, "train.eval_every": 0}
+    )
+    recipe = config_for(expert, scene_name, "quick", overrides=overrides)
+    scene = load_scene(scene_name, **recipe.load_kwargs)
+    start = time.perf_counter()
+    model, result = train_recipe(recipe, scene, progress=progress)
+    seconds = time.perf_counter() - start
+    test = result["test"]
+    record = {
+        "expert": expert,
+        "scene": scene_name,
+        "resolution_scale": resolution,
+        "iterations": iterations,
+        "image_size": [scene.test[0].camera.width, scene.test[0].camera.height],
+        "train_minutes": result["train_seconds"] / 60.0,
+        "minutes": seconds / 60.0,
+        "num_gaussians": result["num_gaussians"],
+        "test_views": test["num_views"],
+        "psnr": test["psnr"],
+        "psnr_dynamic": test.get("psnr_dynamic"),
+        "psnr_static": test.get("psnr_static"),
+        "ssim": test["ssim"],
+        "lpips": test["lpips"],
+        "psnr_native": None,
+        "recipe": recipe.provenance(),
+    }
+    if resolution < 1.0:
+        native = load_scene(scene_name, background=recipe.background, resolution_scale=1.0)
+        record["native_size"] = [native.test[0].camera.width, native.test[0].camera.height]
+        record["psnr_native"] = _psnr_upsampled(model, scene, native)
+    return record
+
+
+def cell_path(workspace: Path, expert: str, scene: str, resolution: float, iterations: int) -> Path:
+    return workspace / scene.replace(":", "_") / f"{expert}-r{resolution:g}-n{iterations}.json"
+
+
+def run_study(
+    scene: str,
+    experts: list[str],
+    iterations: list[int],
+    resolutions: list[float],
+    workspace: Path,
+    limits: dict[float, int] | None = None,
+    force: bool = False,
+    progress: bool = True,
+) -> list[dict]:
+    """Every (expert, resolution, N) cell not beyond ``limits[resolution]``, cached under ``workspace``."""
+    from moegs.io import read_json, write_json
+
+    records = []
+    for resolution in resolutions:
+        for expert in experts:
+            for n in iterations:
+                if n > (limits or {}).get(resolution, math.inf):
+                    continue
+                path = cell_path(workspace, expert, scene, resolution, n)
+                if path.is_file() and not force:
+                    records.append(read_json(path, "convergence cell"))
+                    continue
+                print(f"[convergence] {expert} on {scene} at {resolution:g} x, {n} iterations", flush=True)
+                records.append(run_cell(expert, scene, resolution, n, progress))
+                write_json(path, records[-1])
+    return records
+
+
+def markdown(records: list[dict], paper: dict[str, float]) -> str:
+    """One row per cell, with the paper's value of the expert when known."""
+    lines = [
+        "| expert | resolution | iterations | minutes | Gaussians | PSNR | PSNR dynamic | PSNR upsampled to "
+        "native | paper |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in sorted(records, key=lambda r: (r["expert"], r["resolution_scale"], r["iterations"])):
+        size = "x".join(map(str, r["image_size"]))
+        native = f"{r['psnr_native']:.2f}" if r.get("psnr_native") is not None else "-"
+        dyn = f"{r['psnr_dynamic']:.2f}" if r.get("psnr_dynamic") is not None else "-"
+        ref = f"{paper[r['expert']]:.2f}" if r["expert"] in paper else "-"
+        lines.append(
+            f"| {r['expert']} | {r['resolution_scale']:g} ({size}) | {r['iterations']} | "
+            f"{r['minutes']:.1f} | {r['num_gaussians']} | {r['psnr']:.2f} | {dyn} | {native} | {ref} |"
+        )
+    return "\n".join(lines)
+
+
+def plot(records: list[dict], paper: dict[str, float], title: str, path: Path) -> Path:
+    """PSNR against iterations (left) and against minutes (right), one line per expert and resolution."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    groups: dict[tuple[str, float], list[dict]] = {}
+    for r in records:
+        groups.setdefault((r["expert"], r["resolution_scale"]), []).append(r)
+    colors = {e: f"C{i}" for i, e in enumerate(sorted({r["expert"] for r in records}))}
+    for (expert, res), rows in sorted(groups.items()):
+        rows = sorted(rows, key=lambda r: r["iterations"])
+        style = "-" if res == max(r["resolution_scale"] for r in records) else "--"
+        label = f"{expert} @ {res:g}x ({'x'.join(map(str, rows[0]['image_size']))})"
+        psnrs = [r["psnr"] for r in rows]
+        axes[0].plot(
+            [r["iterations"] for r in rows], psnrs, style, marker="o", color=colors[expert], label=label
+        )
+        axes[1].plot(
+            [r["minutes"] for r in rows], psnrs, style, marker="o", color=colors[expert], label=label
+        )
+    for expert, value in paper.items():
+        if expert in colors:
+            for ax in axes:
+                ax.axhline(value, color=colors[expert], lw=0.8, ls=":")
+    axes[0].set_xscale("log")
+    axes[0].set_xlabel("training iterations (quick schedules scaled)")
+    axes[1].set_xlabel("wall minutes on this machine (train + load + evaluation)")
+    for ax in axes:
+        ax.set_ylabel("test PSNR (dB)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(title + " (dotted: paper, full resolution and schedule)", fontsize=9)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def paper_values(scene: str, experts: list[str]) -> dict[str, float]:
+    """The MoE-GS paper's PSNR of each expert on ``scene`` (``bench.readme.PUBLISHED``), where it has one."""
+    from bench.readme import paper_name, published_numbers
+
+    out = {}
+    for table in published_numbers(scene):
+        if table["kind"] != "moegs":
+            continue
+        for expert in experts:
+            record = table["rows"].get(paper_name(expert), {}).get("PSNR")
+            if record is not None:
+                out[expert] = float(record["value"])
+    return out
+
+
+def _floats(text: str) -> list[float]:
+    return [float(x) for x in text.split(",") if x.strip()]
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m bench.convergence", description=__doc__.split("\n\n")[0])
+    p.add_argument("--scene", default="dnerf:mutant")
+    p.add_argument("--experts", default="deformable,grid4d")
+    p.add_argument("--iterations", default="600,1500,3000,6000", help="comma-separated run lengths")
+    p.add_argument("--resolutions", default="0.125,0.25", help="comma-separated resolution scales")
+    p.add_argument("--limit", action="append", default=[], help="RES=N: no run longer than N at RES")
+    p.add_argument("--workspace", type=Path, default=Path("runs") / "convergence")
+    p.add_argument("--out", type=Path, default=Path("reports") / "convergence")
+    p.add_argument("--force", action="store_true", help="recompute finished cells")
+    p.add_argument("--no-progress", action="store_true")
+    args = p.parse_args(argv)
+    try:
+        experts = [e.strip() for e in args.experts.split(",") if e.strip()]
+        iterations = [int(x) for x in _floats(args.iterations)]
+        resolutions = _floats(args.resolutions)
+        limits = {float(k): int(v) for k, v in (item.split("=", 1) for item in args.limit)}
+        for expert in experts:
+            scaled_overrides(expert, args.scene, QUICK_ITERATIONS)  # unknown experts fail before any work
+    except ValueError as err:
+        p.exit(2, f"bench.convergence: {err}\n")
+    records = run_study(
+        args.scene, experts, iterations, resolutions, args.workspace, limits, args.force, not args.no_progress
+    )
+    paper = paper_values(args.scene, experts)
+    stem = args.scene.replace(":", "_")
+    plot(records, paper, f"Convergence on {args.scene}", args.out / f"{stem}.png")
+    table = markdown(records, paper)
+    (args.out / f"{stem}.md").write_text(table + "\n")
+    from moegs.io import write_json
+
+    write_json(args.out / f"{stem}.json", {"scene": args.scene, "paper": paper, "cells": records})
+    print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
