@@ -26,6 +26,7 @@ def test_table_reports_ratios_memory_and_verdicts():
             bench("test_three_experts", 5000, 128, False, "cpu", 0.04, single_pass=False),
             bench("test_three_experts", 5000, 128, True, "cpu", 0.10, single_pass=True),
             bench("test_three_experts", 5000, 128, True, "cpu", 0.12, single_pass=False),
+            bench("test_gsplat_torch_reference", 20000, 256, True, "gsplat-torch-reference", 4.0),
         ],
     }
     text = markdown(data)
@@ -34,4 +35,5 @@ def test_table_reports_ratios_memory_and_verdicts():
     assert "| 100k Gaussians, 512², fwd | – | 900.0 | – | 650.0 | < 500 MB: MISSED |" in text
     assert "| fwd (rendering) | 40.0 | 20.0 | 2.00× | ≥ 1.5×: met; paper: 1.67× FPS on a GPU |" in text
     assert "| fwd+bwd (training) | 120.0 | 100.0 | 1.20× | none (router training step) |" in text
+    assert "| 20k Gaussians, 256², fwd+bwd | 4000.0 | 500.0 | 8.0× | ≥ 15×: MISSED |" in text
     assert "Test CPU (2026-11-23)" in text

@@ -191,6 +191,27 @@ def test_rasterize(benchmark, n, res, backward, backend):
     _bench(benchmark, n=n, res=res, backend=backend, backward=backward)
 
 
+@pytest.mark.parametrize(("n", "res"), SIZES, ids=[f"{n // 1000}k-{r}px" for n, r in SIZES])
+def test_gsplat_torch_reference(benchmark, n, res, monkeypatch):
+    """gsplat's own pure-PyTorch rasterization (``tests/helpers/gsplat_reference.py``) on the same scenes,
+    fwd+bwd, through our CUDA glue on CPU tensors: compare with ``test_rasterize[cpu-fwd+bwd]`` of the same
+    run. It holds every (pixel, Gaussian) pair at once, like our torch reference, so the same budget
+    applies."""
+    from helpers import gsplat_reference
+
+    from moegs.render import _cuda
+
+    if (need := torch_memory_mb(n, res, True)) > TORCH_BUDGET_MB:
+        pytest.skip(f"gsplat's reference would need ~{need:.0f} MB > {TORCH_BUDGET_MB:.0f} MB")
+    gsplat_reference.install(monkeypatch)
+    check = _cuda.check
+    monkeypatch.setattr(_cuda, "check", lambda device, dtype: check(torch.device("cuda"), dtype))
+    monkeypatch.setattr(_cuda, "is_installed", lambda: True)
+    render, frame = case_renderer(n=n, res=res, backend="cuda", backward=True)
+    benchmark.extra_info.update(n=n, res=res, backend="gsplat-torch-reference", backward=True)
+    benchmark.pedantic(_run, args=(render, frame, True), rounds=ROUNDS, warmup_rounds=WARMUP)
+
+
 @pytest.mark.parametrize("backend", backends())
 @pytest.mark.parametrize("backward", [False, True], ids=["fwd", "fwd+bwd"])
 @pytest.mark.parametrize("single_pass", [True, False], ids=["single-pass", "separate"])

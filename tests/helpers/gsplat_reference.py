@@ -5,13 +5,16 @@ gsplat (``pip install gsplat``, pure Python) ships torch references of its CUDA 
 That path still reaches three things that need CUDA or another package; :func:`install` swaps them
 for short torch equivalents written here from gsplat's documented semantics:
 
-* ``isect_tiles`` / ``isect_offset_encode`` (CUDA wrappers) -> the ``_torch_impl`` versions;
+* ``isect_tiles`` / ``isect_offset_encode`` (CUDA wrappers) -> ``isect_tiles`` below
+  (``_torch_impl._isect_tiles`` vectorised: the original loops over Gaussians and tiles in Python;
+  same output, tested) and the ``_torch_impl`` offset encoder;
 * ``rasterize_to_indices_in_range`` (CUDA only): per pixel, in depth order, the Gaussians with
   ``alpha = min(0.999, o exp(-sigma)) >= 1/255`` (``sigma >= 0``) until ``T (1 - alpha) <= 1e-4``;
 * nerfacc's ``render_weight_from_alpha`` and ``accumulate_along_rays``.
 
 ``gsplat.rasterization`` is then replaced by a function that accepts ``covars`` (what ``moegs`` passes) and
-runs ``_rasterization`` with those covariances. Keep scenes tiny: ``_isect_tiles`` loops in Python.
+runs ``_rasterization`` with those covariances. ``_indices_in_range`` loops over tiles, so keep scenes
+small.
 """
 
 from __future__ import annotations
@@ -78,6 +81,32 @@ def _indices_in_range(
     return gs[order], px[order], im[order]
 
 
+@torch.no_grad()
+def isect_tiles(means2d, radii, depths, tile_size, tile_width, tile_height, **_):
+    """``_torch_impl._isect_tiles`` without its Python loops: ``(tiles_per_gauss [..., N], isect_ids [M],
+    flatten_ids [M])``, ids = image | tile | depth bits, sorted."""
+    images = means2d.shape[:-2]
+    n = means2d.shape[-2]
+    count = math.prod(images)
+    lo = torch.floor(means2d.reshape(count, n, 2) / tile_size - radii.reshape(count, n, 2) / tile_size).int()
+    hi = torch.ceil(means2d.reshape(count, n, 2) / tile_size + radii.reshape(count, n, 2) / tile_size).int()
+    limits = torch.tensor([tile_width, tile_height], dtype=torch.int32)
+    lo, hi = torch.minimum(lo.clamp(min=0), limits), torch.minimum(hi.clamp(min=0), limits)
+    span = hi - lo  # [I, N, 2]
+    per_gauss = span.prod(-1) * (radii.reshape(count, n, 2) > 0).all(-1)
+    counts = per_gauss.flatten().long()
+    flat = torch.repeat_interleave(torch.arange(count * n), counts)  # image * n + gaussian, per pair
+    local = torch.arange(len(flat)) - (torch.cumsum(counts, 0) - counts)[flat]
+    width = span.reshape(-1, 2)[flat, 0].long()
+    x = lo.reshape(-1, 2)[flat, 0].long() + local % width
+    y = lo.reshape(-1, 2)[flat, 1].long() + local // width
+    tile_bits = (tile_width * tile_height).bit_length()
+    depth_bits = depths.reshape(-1)[flat].float().view(torch.int32).long() & 0xFFFFFFFF
+    ids = ((flat // n) << (tile_bits + 32)) | ((y * tile_width + x) << 32) | depth_bits
+    ids, order = torch.sort(ids)
+    return per_gauss.reshape(*images, n).int(), ids, flat[order].int()
+
+
 def _render_weight_from_alpha(alphas: Tensor, ray_indices: Tensor, n_rays: int):
     """nerfacc: ``weights = alpha_i prod_{j<i} (1 - alpha_j)`` along each ray (samples grouped by ray)."""
     log_keep = torch.log1p(-alphas.double())
@@ -110,13 +139,7 @@ def install(monkeypatch: pytest.MonkeyPatch) -> types.ModuleType:
     nerfacc.accumulate_along_rays = _accumulate_along_rays
     monkeypatch.setitem(sys.modules, "nerfacc", nerfacc)
     monkeypatch.setattr(wrapper, "rasterize_to_indices_in_range", _indices_in_range)
-    monkeypatch.setattr(
-        rendering,
-        "isect_tiles",
-        lambda means2d, radii, depths, tile_size, tile_width, tile_height, **_: impl._isect_tiles(
-            means2d, radii, depths, tile_size, tile_width, tile_height
-        ),
-    )
+    monkeypatch.setattr(rendering, "isect_tiles", isect_tiles)
     monkeypatch.setattr(
         rendering, "isect_offset_encode", lambda ids, n, tw, th: impl._isect_offset_encode(ids, n, tw, th)
     )
