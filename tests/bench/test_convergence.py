@@ -51,8 +51,11 @@ def test_unknown_expert_names_the_table():
 @pytest.mark.slow
 def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     out = tmp_path / "reports" / "convergence"
+    readme = tmp_path / "README.md"
+    readme.write_text("# x\n<!-- results:convergence -->\nold\n<!-- /results:convergence -->\n")
     args = ["--scene", SCENE, "--experts", "static", "--iterations", "10,20", "--resolutions", "0.0625",
-            "--workspace", str(tmp_path / "ws"), "--out", str(out), "--no-progress"]  # fmt: skip
+            "--workspace", str(tmp_path / "ws"), "--out", str(out), "--no-progress",
+            "--readme", str(readme)]  # fmt: skip
     assert convergence.main(args) == 0
     summary = json.loads((out / "dnerf_mutant.json").read_text())
     cells = summary["cells"]
@@ -64,6 +67,12 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     assert (out / "dnerf_mutant.png").stat().st_size > 10_000
     assert "| static | 0.0625 (50x50) | 10 |" in (out / "dnerf_mutant.md").read_text()
 
+    written = readme.read_text()
+    assert (
+        "old" not in written
+        and "![convergence on dnerf:mutant](reports/convergence/dnerf_mutant.png)" in written
+    )
+    assert "| static | 0.0625 (50x50) | 20 |" in written and "python -m bench.convergence --scene" in written
     section = "\n".join(convergence_markdown(tmp_path / "reports"))
     assert "![dnerf_mutant](convergence/dnerf_mutant.png)" in section and "| static | 0.0625" in section
 
