@@ -9,6 +9,10 @@ A run of every spec writes those under ``--out``. A subset run (``--tables 3,17`
 files for its specs only under ``reports/subsets/<ids>/`` and leaves the full report and tables as
 they are, so the committed outputs always come from one complete run.
 
+``--preset standard`` runs only the tables whose scenes are all real (the stand-in tables stay at quick)
+and writes ``tables/standard/`` and ``reports/standard/``, including paper | standard | quick tables
+(``bench.sidebyside``); the quick report shows the same comparison once the standard run exists.
+
 Datasets without real data under ``MOEGS_DATA`` run on synthetic stand-ins; the run says so in one line
 at the start, and ``--require-real`` makes it an error instead.
 
@@ -120,16 +124,33 @@ def _executor(args: argparse.Namespace):
     )
 
 
-def write_outputs(plan, workspace, selected: list[str], out: Path, run: dict | None = None) -> dict:
-    """Tables and plots for ``selected``, the report for every spec of ``plan``."""
+def output_dirs(out: Path, preset, selected: list[str], complete: list[str]) -> tuple[Path, Path]:
+    """``(tables, reports)`` folders of a run: ``out/tables`` and ``out/reports`` for a complete run of
+    the default layout; a ``real_only`` preset (``standard``) keeps its own ``<preset>/`` subfolders; a
+    subset of ``complete`` goes under ``reports/subsets/[<preset>-]<ids>/``, leaving the full outputs."""
+    if set(selected) != set(complete):
+        own = f"{preset.name}-" if preset.real_only else ""
+        base = out / "reports" / "subsets" / (own + "-".join(selected))
+        return base / "tables", base / "reports"
+    if preset.real_only:
+        return out / "tables" / preset.name, out / "reports" / preset.name
+    return out / "tables", out / "reports"
+
+
+def write_outputs(
+    plan, workspace, selected: list[str], tables_dir: Path, reports_dir: Path, run: dict | None = None
+) -> dict:
+    """Tables and plots for ``selected``, the report for every spec of ``plan``; a ``real_only`` preset
+    also writes its paper | standard | quick tables (``bench.sidebyside``)."""
     from bench.latex import write_index, write_table
     from bench.plots import plot_spec
     from bench.report import spec_report, write_report
+    from bench.sidebyside import compare
+    from bench.sidebyside import write_latex as write_comparison
     from bench.signals import expert_rows, routing_rows, seed_noise
     from bench.values import SpecValues
 
-    tables_dir, reports_dir = out / "tables", out / "reports"
-    reports, written = [], []
+    reports, written, comparisons = [], [], []
     header = f"preset {plan.preset.name}, generated {time.strftime('%Y-%m-%d %H:%M')}"
     noise = seed_noise(plan, workspace)
     for sp in plan.specs:
@@ -147,6 +168,11 @@ def write_outputs(plan, workspace, selected: list[str], out: Path, run: dict | N
             old = tables_dir / f"{sp.spec.id}.tex"
             latex = old if old.is_file() else None
         reports.append(spec_report(values, plan.preset, latex, figures))
+        comparison = compare(sp.spec, workspace)
+        if comparison is not None and comparison.has_values:
+            comparisons.append(comparison)
+            if plan.preset.real_only and sp.spec.id in selected:
+                written.append(write_comparison(comparison, tables_dir, header))
     all_tex = sorted(p for p in tables_dir.glob("*.tex") if p.name != "all.tex")
     if all_tex:
         write_index(all_tex, tables_dir)
@@ -154,6 +180,7 @@ def write_outputs(plan, workspace, selected: list[str], out: Path, run: dict | N
         "noise": noise,
         "experts": expert_rows(plan, workspace),
         "routing": routing_rows(plan, workspace),
+        "presets": comparisons,
     }
     paths = write_report(reports, plan.preset, reports_dir, run, signals)
     return {"reports": reports, "paths": paths, "tables": written}
@@ -185,14 +212,32 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     plan = make_plan(specs, preset)
     run_plan = type(plan)(preset, [sp for sp in plan.specs if sp.spec.id in selected])
+    complete = list_specs()
+    if preset.real_only:
+        complete = [sp.spec.id for sp in plan.specs if sp.scenes and not sp.uses_stand_in]
+        skipped = [s for s in selected if s not in complete]
+        selected = [s for s in selected if s in complete]
+        if skipped:
+            print(
+                f"[bench] preset {preset.name} runs real scenes only; stand-in tables stay at quick: "
+                f"{', '.join(skipped)}",
+                file=sys.stderr,
+            )
+        if not selected:
+            print(
+                f"[bench] error: no selected table runs on real data at preset {preset.name}", file=sys.stderr
+            )
+            return 2
+        plan = type(plan)(preset, [sp for sp in plan.specs if sp.spec.id in complete])
+        run_plan = type(plan)(preset, [sp for sp in plan.specs if sp.spec.id in selected])
     stand_ins = data_line(run_plan)
     if stand_ins:
         print(f"[bench] {stand_ins}", file=sys.stderr)
         if args.require_real:
             print("[bench] error: --require-real and real data is missing (see above)", file=sys.stderr)
             return 2
-    subset = set(selected) != set(list_specs())
-    out = args.out / "reports" / "subsets" / "-".join(selected) if subset else args.out
+    subset = set(selected) != set(complete)
+    tables_dir, reports_dir = output_dirs(args.out, preset, selected, complete)
     n_eval = len(run_plan.eval_tasks())
     n_build = sum(len(level) for level in run_plan.build_levels())
     print(
@@ -218,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
                 for o in summary.failures
             ],
         }
-    outputs = write_outputs(run_plan if subset else plan, workspace, selected, out, run)
+    outputs = write_outputs(run_plan if subset else plan, workspace, selected, tables_dir, reports_dir, run)
     elapsed = time.perf_counter() - start
     _print_summary(outputs["reports"], selected, outputs["paths"], elapsed)
     if run and run["failures"]:

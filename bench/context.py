@@ -30,25 +30,37 @@ class Context:
         self.task: Task | None = None
         """The task being run (set by the worker; cells write their files under its ``files_dir``)."""
         self._scenes: dict[str, Any] = {}
+        self._origins: dict[int, tuple[Task, str | None]] = {}
 
     def log(self, message: str) -> None:
         print(f"[bench] {message}", file=sys.stderr, flush=True)
 
     # ------------------------------------------------------------------ scenes
-    def scene(self, task: Task, background: str | None = None):
+    def scene(self, task: Task, background: str | None = None, **changes: Any):
         """The ``moegs.Scene`` of ``task`` (loaded once per process), on ``background`` when given (the
-        recipe's: D-NeRF composites its images on it)."""
+        recipe's: D-NeRF composites its images on it); ``changes`` replace loader arguments."""
         from bench.keys import canonical_json
         from bench.scenes import load
 
-        kwargs = dict(task.scene_kwargs)
+        kwargs = {**task.scene_kwargs, **changes}
         if background is not None:
             kwargs["background"] = background
         key = task.scene + canonical_json(kwargs)
         if key not in self._scenes:
             self.log(f"loading scene {task.scene} {kwargs}")
             self._scenes[key] = load(task.scene, kwargs)
+            self._origins[id(self._scenes[key])] = (task, background)
         return self._scenes[key]
+
+    def native_scene(self, scene: Any):
+        """``scene`` (loaded by :meth:`scene`) at its native resolution when the preset scores upsampled
+        renders (``BenchPreset.native_psnr``) and it is a real scene loaded smaller; else ``None``."""
+        task, background = self._origins[id(scene)]
+        if not self.preset.native_psnr or task.scene.startswith("synthetic:"):
+            return None
+        if task.scene_kwargs.get("resolution_scale", 1.0) >= 1.0:
+            return None
+        return self.scene(task, background, resolution_scale=1.0)
 
     # ------------------------------------------------------------------ artefacts
     def artifact(self, task: Task) -> Path:

@@ -11,12 +11,7 @@ figure. Cells are cached as JSON under ``--workspace`` (atomic writes): an inter
 and a finished cell is never recomputed unless ``--force``. The figure (PSNR against iterations and
 against minutes on this machine) and a markdown table go to ``--out``.
 
-Scaling rule: every iteration-valued field of the quick reduction that places an event or a decay in
-the run (``SCHEDULE_FIELDS``: static phase, warm-ups, lr decay lengths, densification window, opacity
-reset period) is multiplied by ``N / 600`` (``NEVER`` stays never); per-step intervals
-(``densify_every``, ``prune_every``) keep the quick value, so a longer run densifies more often, closer
-to the original's event count; model sizes stay quick's.
-Only experts with a ``SCHEDULE_FIELDS`` row can be studied.
+The scaling rule is ``bench.schedules``'s (the ``standard`` bench preset trains with the same).
 """
 
 from __future__ import annotations
@@ -26,69 +21,14 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
-QUICK_ITERATIONS = 600  # moegs.experts.static.QUICK_ITERATIONS (checked by tests)
-ADC_WINDOW = ("strategy.densify_from", "strategy.densify_until", "strategy.reset_every")
-SCHEDULE_FIELDS: dict[str, tuple[str, ...]] = {
-    "static": ("means_lr_max_steps", *ADC_WINDOW),
-    # warm_up: static phase; time_noise_steps: AST annealing; deform_lr_max_steps is the paper's (>= N)
-    "deformable": ("warm_up", "time_noise_steps", "means_lr_max_steps", *ADC_WINDOW),
-    "grid4d": ("warm_up", "means_lr_max_steps", *ADC_WINDOW),
-    # coarse (static) stage, its copy in the strategy, the densify/prune window and the reset period
-    "fourdgs": (
-        "coarse_iterations",
-        "means_lr_max_steps",
-        "strategy.coarse_iterations",
-        *ADC_WINDOW,
-        "strategy.prune_from",
-    ),
-}
-"""Quick-reduction fields scaled with the run length, per expert (the keys of ``quick_fields``)."""
-
-
-def scaled_overrides(expert: str, scene: str, iterations: int) -> dict[str, Any]:
-    """Resolver overrides that stretch the quick recipe of ``expert`` on ``scene`` to ``iterations``."""
-    from moegs.recipes import config_for
-    from moegs.train.strategy import NEVER
-
-    if expert not in SCHEDULE_FIELDS:
-        raise ValueError(
-            f"no schedule table for expert {expert!r} (bench.convergence.SCHEDULE_FIELDS has "
-            f"{', '.join(SCHEDULE_FIELDS)})"
-        )
-    if iterations < 1:
-        raise ValueError(f"iterations must be >= 1, got {iterations}")
-    quick = config_for(expert, scene, "quick").reductions
-    ratio = iterations / QUICK_ITERATIONS
-    out: dict[str, Any] = {"train.iterations": iterations}
-    for key in SCHEDULE_FIELDS[expert]:
-        out[key] = quick[key] if quick[key] >= NEVER else max(1, round(quick[key] * ratio))
-    return out
-
-
-def _psnr_upsampled(expert: Any, scene: Any, native: Any) -> float:
-    """Mean PSNR of the renders upsampled (bicubic) to the native test images ``native.test``."""
-    import torch
-    import torch.nn.functional as F
-
-    from moegs.metrics import psnr
-    from moegs.train.evaluate import render_view
-
-    values = []
-    with torch.no_grad():
-        for view, full in zip(scene.test, native.test, strict=True):
-            rgb = render_view(expert, view.camera, scene.background)[0]
-            gt = full.image()
-            up = F.interpolate(
-                rgb.permute(2, 0, 1)[None], size=gt.shape[:2], mode="bicubic", align_corners=False
-            )
-            values.append(float(psnr(up[0].permute(1, 2, 0).clamp(0, 1), gt)))
-    return sum(values) / len(values)
+from bench.schedules import QUICK_ITERATIONS, scaled_overrides
 
 
 def run_cell(expert: str, scene_name: str, resolution: float, iterations: int, progress: bool) -> dict:
     """Train and score one cell (see the module docstring); a JSON-ready record."""
+    from bench.cells._eval import psnr_upsampled
+    from bench.cells._lib import expert_renderer
     from moegs.data import load_scene
     from moegs.recipes import config_for
     from moegs.train.entry import train_recipe
@@ -124,7 +64,8 @@ def run_cell(expert: str, scene_name: str, resolution: float, iterations: int, p
     if resolution < 1.0:
         native = load_scene(scene_name, background=recipe.background, resolution_scale=1.0)
         record["native_size"] = [native.test[0].camera.width, native.test[0].camera.height]
-        record["psnr_native"] = _psnr_upsampled(model, scene, native)
+        render = expert_renderer(model, scene.background)
+        record["psnr_native"] = psnr_upsampled(render, scene.test, native.test)
     return record
 
 

@@ -243,6 +243,25 @@ def convergence_markdown(base: Path) -> list[str]:
     return lines
 
 
+def presets_markdown(comparisons: list[Any]) -> list[str]:
+    """The paper | standard | quick section (``bench.sidebyside.Comparison`` list; empty: no section)."""
+    from bench.sidebyside import markdown
+
+    if not comparisons:
+        return []
+    lines = [
+        "## Real scenes: paper | standard | quick",
+        "",
+        "Our value [PSNR of the dynamic region] (Δ = ours - paper) of each preset; column heads give the "
+        "resolution relative to the paper's and the expert / router training iterations (`standard`: the "
+        "quick schedules stretched, `bench.schedules`). ?: not run yet.",
+        "",
+    ]
+    for cmp in comparisons:
+        lines += [f"### {cmp.spec.id}: {cmp.spec.title}", "", markdown(cmp), ""]
+    return lines
+
+
 def render_markdown(
     reports: list[SpecReport], header: dict[str, Any], base: Path, signals: dict[str, Any] | None = None
 ) -> str:
@@ -271,6 +290,7 @@ def render_markdown(
             "",
         ]
     lines += signals_markdown(signals or {})
+    lines += presets_markdown((signals or {}).get("presets", []))
     lines += convergence_markdown(base)
     lines += [
         "## Summary",

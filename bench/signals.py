@@ -43,7 +43,8 @@ def _regions(metrics: dict[str, Any], name: str) -> dict[str, float | None]:
 
 
 def expert_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
-    """``[{"scene", "dataset", "expert", "psnr": {"full", "dynamic", "static"}, "ssim": ..., "lpips": ...}]``
+    """``[{"scene", "dataset", "expert", "preset", "psnr": {"full", "dynamic", "static"}, "ssim": ...,
+    "lpips": ...}]``
     of the seed-0, full-budget expert cells."""
     rows: dict[tuple[str, str, str], dict[str, Any]] = {}
     for _sp, slot, result in _ok_results(plan, workspace, "expert"):
@@ -58,6 +59,7 @@ def expert_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
                 "scene": task.scene,
                 "dataset": task.params.get("dataset"),
                 "expert": task.params["expert"],
+                "preset": task.preset,
                 **{name: _regions(m, name) for name in ("psnr", "ssim", "lpips")},
             },
         )

@@ -65,6 +65,8 @@ METRICS: dict[str, Metric] = {
         Metric("SSIM static", "ssim_static", True, 3),
         Metric("LPIPS static", "lpips_static", False, 3),
         Metric("PSNR dynamic", "psnr_dynamic", True, 2, "dB"),
+        # below the native resolution: the render upsampled (bicubic) against the native ground truth
+        Metric("PSNR native", "psnr_native", True, 2, "dB"),
         Metric("SSIM dynamic", "ssim_dynamic", True, 3),
         Metric("LPIPS dynamic", "lpips_dynamic", False, 3),
         # geometry and motion analyses (figures)

@@ -4,8 +4,10 @@ plus render speed and model size.
 ``render(camera) -> image [H, W, 3]`` is called under ``torch.no_grad``. Scores come from
 ``moegs.train.evaluate.evaluate_renderer`` (this module adds no metric of its own): full image,
 dynamic region and static region (synthetic stand-ins: ground-truth dynamic mask; D-NeRF: object alpha;
-Panoptic: foreground segmentation). Speed follows ``moegs.metrics.speed.measure_render`` (render call
-only, warm-up, median per view).
+Panoptic: foreground segmentation). Below a real scene's native resolution, with ``native`` given
+(``Context.native_scene``), the renders are also upsampled (bicubic) to the native test images and
+scored there (``psnr_native``: what the paper's resolution would see of this model). Speed follows
+``moegs.metrics.speed.measure_render`` (render call only, warm-up, median per view).
 """
 
 from __future__ import annotations
@@ -25,10 +27,34 @@ def module_megabytes(*modules: Any) -> float:
     return total / 2**20
 
 
+def psnr_upsampled(render: Callable[[Any], Any], views: list[Any], native_views: list[Any]) -> float:
+    """Mean PSNR of ``render(view.camera)`` upsampled (bicubic) to the image of the matching native view."""
+    import torch
+    import torch.nn.functional as F
+
+    from moegs.metrics import psnr
+
+    values = []
+    with torch.no_grad():
+        for view, full in zip(views, native_views, strict=True):
+            gt = full.image()
+            rgb = render(view.camera).permute(2, 0, 1)[None]
+            up = F.interpolate(rgb, size=gt.shape[:2], mode="bicubic", align_corners=False)
+            values.append(float(psnr(up[0].permute(1, 2, 0).clamp(0, 1), gt)))
+    return sum(values) / len(values)
+
+
 def evaluate_cell(
-    render: Callable[[Any], Any], scene: Any, preset: BenchPreset, *, speed: bool = True, regions: bool = True
+    render: Callable[[Any], Any],
+    scene: Any,
+    preset: BenchPreset,
+    *,
+    speed: bool = True,
+    regions: bool = True,
+    native: Any = None,
 ) -> dict[str, Any]:
-    """``{"metrics", "per_view", "details"}`` of ``render`` on ``scene``'s test views under ``preset``."""
+    """``{"metrics", "per_view", "details"}`` of ``render`` on ``scene``'s test views under ``preset``
+    (``native``: the same scene at native resolution, for ``psnr_native``)."""
     import torch
 
     from moegs.metrics import measure_render
@@ -46,6 +72,9 @@ def evaluate_cell(
         "region_masks": scores.pop("region_masks"),
     }
     metrics = {k: v for k, v in scores.items() if v is not None or k in ("psnr", "ssim", "lpips")}
+    if native is not None:
+        metrics["psnr_native"] = psnr_upsampled(render, views, eval_views(native.test, preset.test_views))
+        details["native_size"] = [native.test[0].camera.width, native.test[0].camera.height]
     if speed:
         cams = [v.camera for v in views[: max(1, preset.speed_views)]]
 

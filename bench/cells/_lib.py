@@ -35,13 +35,19 @@ def recipe_of(ctx: Any, task: Task, expert: str | None = None, extra: dict | Non
     """The ``moegs.recipes.Recipe`` a build task trains with: the resolver's recipe at the bench preset's
     expert preset, the dataset's conventions (``params["config"]``) and ``extra`` fields, the preset's
     iteration override (``steps``, default ``train_steps``) times the budget (schedules unchanged: the run
-    is cut short) and the run fields (``RUN_FIELDS``). ``expert`` defaults to ``params["expert"]``."""
+    is cut short) and the run fields (``RUN_FIELDS``). On a real scene of a dataset the preset stretches
+    (``BenchPreset.stretched``), the quick schedules are first stretched to that length
+    (``bench.schedules.scaled_overrides``). ``expert`` defaults to ``params["expert"]``."""
+    from bench.schedules import scaled_overrides
     from moegs.recipes import config_for
 
     p = ctx.preset
     name = expert or task.params["expert"]
     overrides = {**task.params.get("config", {}), **(extra or {})}
     dataset = task.params.get("dataset")
+    stretch = p.stretched(dataset, not task.scene.startswith("synthetic:"))
+    if stretch is not None:
+        overrides = {**scaled_overrides(name, task.scene, stretch), **overrides}
     base = config_for(name, task.scene, p.expert_preset, dataset=dataset, overrides=overrides)
     overrides["train.iterations"] = p.steps(
         base.config.train.iterations,

@@ -70,7 +70,8 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     scene = moe_kind.moe_scene(ctx, _teacher(task))
     build_task = artifacts(task)[0]
     student = load_trained_expert(ctx, build_task, scene)
-    out = evaluate_cell(expert_renderer(student, scene.background), scene, ctx.preset)
+    native = ctx.native_scene(scene)
+    out = evaluate_cell(expert_renderer(student, scene.background), scene, ctx.preset, native=native)
     out["metrics"]["memory_mb"] = module_megabytes(student)
     out["metrics"]["train_time_h"] = train_hours(ctx, [build_task])
     out["details"]["num_gaussians"] = student.num_gaussians

@@ -70,7 +70,8 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     build_task = artifacts(task)[0]
     scene = ctx.scene(task, recipe(ctx, build_task).background)
     model = load_trained_expert(ctx, build_task, scene)
-    out = evaluate_cell(expert_renderer(model, scene.background), scene, ctx.preset)
+    native = ctx.native_scene(scene)
+    out = evaluate_cell(expert_renderer(model, scene.background), scene, ctx.preset, native=native)
     meta = ctx.meta(build_task)
     out["metrics"]["memory_mb"] = module_megabytes(model)
     out["metrics"]["train_time_h"] = float(meta.get("train_seconds") or 0.0) / 3600.0

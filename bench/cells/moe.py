@@ -84,11 +84,14 @@ def deps(task: Task) -> list[Task]:
 
 
 def router_config(ctx: Any, task: Task):
-    """The ``RouterConfig`` of a router build task: the preset of the bench scale and convention."""
+    """The ``RouterConfig`` of a router build task: the preset of the bench scale (``router_scale``, else
+    the experts' scale) and convention, with the bench preset's iteration override."""
     from moegs.moe import RouterConfig, router_preset
 
     cfg = RouterConfig.from_preset(
-        router_preset(ctx.preset.expert_preset, task.params.get("convention", "code"))
+        router_preset(
+            ctx.preset.router_scale or ctx.preset.expert_preset, task.params.get("convention", "code")
+        )
     )
     return replace(
         cfg,
@@ -160,7 +163,7 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
         gates.append(out.gates)
         return out.image
 
-    out = evaluate_cell(render, scene, ctx.preset)
+    out = evaluate_cell(render, scene, ctx.preset, native=ctx.native_scene(scene))
     details["routing"] = routing_signal(gates, eval_views(scene.test, ctx.preset.test_views))
     out["metrics"]["memory_mb"] = module_megabytes(model)
     out["metrics"]["train_time_h"] = train_hours(ctx, [*deps(build_task)[1:], build_task])

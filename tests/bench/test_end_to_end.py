@@ -71,7 +71,7 @@ def run(tmp_path_factory):
     start = time.perf_counter()
     summary = execute(plan, ws, LocalExecutor(jobs=2), progress=False)
     cold = time.perf_counter() - start
-    outputs = write_outputs(plan, ws, [spec.id], out)
+    outputs = write_outputs(plan, ws, [spec.id], out / "tables", out / "reports")
     return {
         "spec": spec,
         "plan": plan,
