@@ -132,6 +132,18 @@ def test_cli_runs_real_tables_only_into_its_own_folders(tmp_path, mutant_root, b
 
 
 @pytest.mark.realdata
+def test_tox_repro_env_accepts_the_standard_preset(tmp_path, mutant_root, basketball_root, monkeypatch):
+    """``MOEGS_PRESET=standard tox -e repro-tab17`` runs ``bench.all --tables repro-tab17``: a subset of
+    the standard run, written under ``reports/subsets/standard-tab17``."""
+    monkeypatch.setenv("MOEGS_PRESET", "standard")
+    args = ["--tables", "repro-tab17", "--no-run", "--no-progress", "--workspace", str(tmp_path / "ws")]
+    assert main([*args, "--out", str(tmp_path)]) == 0
+    subset = tmp_path / "reports" / "subsets" / "standard-tab17"
+    assert (subset / "tables" / "tab17.tex").is_file() and (subset / "reports" / "summary.json").is_file()
+    assert "Preset standard" in (subset / "tables" / "tab17.tex").read_text()
+
+
+@pytest.mark.realdata
 @pytest.mark.slow
 def test_table_xvii_at_a_tiny_standard_scale(tmp_path, mutant_root, monkeypatch):
     """Table XVII end to end in this process at a tiny copy of ``standard``: the experts train their
@@ -180,3 +192,16 @@ def test_table_xvii_at_a_tiny_standard_scale(tmp_path, mutant_root, monkeypatch)
     )
     summary = json.loads(out["paths"]["json"].read_text())
     assert {r["preset"] for r in summary["experts"]} == {"standard-test"}
+
+    readme = tmp_path / "README.md"
+    readme.write_text("# x\n<!-- results:standard -->\nold\n<!-- /results:standard -->\n")
+    assert bench.sidebyside.main(["--workspace", str(ws.root), "--readme", str(readme)]) == 0
+    written = readme.read_text()
+    assert "old" not in written and "tab17: Large motion: D-NeRF (PSNR)" in written
+    assert "| DeformableGS | Mutant | 42.03 |" in written and "upsampled to native" in written
+
+
+def test_sidebyside_without_results_says_what_to_run(tmp_path, capsys):
+    with pytest.raises(SystemExit) as err:
+        bench.sidebyside.main(["--workspace", str(tmp_path / "empty")])
+    assert err.value.code == 1 and "no real-scene results in the workspace" in capsys.readouterr().err
