@@ -50,5 +50,5 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
 
 def test_cli_rejects_an_expert_without_a_schedule_table(capsys):
     with pytest.raises(SystemExit) as err:
-        convergence.main(["--experts", "stg", "--workspace", "/nonexistent"])
-    assert err.value.code == 2 and "no schedule table for expert 'stg'" in capsys.readouterr().err
+        convergence.main(["--experts", "mode", "--workspace", "/nonexistent"])
+    assert err.value.code == 2 and "no schedule table for expert 'mode'" in capsys.readouterr().err

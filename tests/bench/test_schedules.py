@@ -9,36 +9,60 @@ from moegs.experts.static import QUICK_ITERATIONS
 from moegs.recipes import config_for
 from moegs.train.strategy import NEVER
 
-SCENE = "dnerf:mutant"
-KEPT = ("strategy.densify_every", "strategy.prune_every")
-"""Iteration-valued quick fields that are intervals and keep their quick value (see the module docstring)."""
+SCENES = ("dnerf:mutant", "n3v:coffee_martini", "technicolor:Birthday")
+"""Recipes with different quick values: unset fields (None), a deformation from step 0, never, tuples."""
+CASES = [(e, s) for e in sorted(schedules.SCHEDULE_FIELDS) for s in SCENES]
+
+
+def _times(value, k: int):
+    """What stretching by an integer ``k`` must give: unset, 0 and never stay; tuples element-wise."""
+    if isinstance(value, tuple):
+        return tuple(_times(v, k) for v in value)
+    return value if value is None or value == 0 or value >= NEVER else k * value
 
 
 def test_quick_length_matches_the_library():
     assert schedules.QUICK_ITERATIONS == QUICK_ITERATIONS
 
 
-@pytest.mark.parametrize("expert", sorted(schedules.SCHEDULE_FIELDS))
-def test_scaling_is_the_identity_at_the_quick_length_and_linear_beyond(expert):
-    quick = config_for(expert, SCENE, "quick").reductions
-    same = schedules.scaled_overrides(expert, SCENE, QUICK_ITERATIONS)
+@pytest.mark.parametrize(("expert", "scene"), CASES)
+def test_scaling_is_the_identity_at_the_quick_length_and_linear_beyond(expert, scene):
+    quick = config_for(expert, scene, "quick").reductions
+    same = schedules.scaled_overrides(expert, scene, QUICK_ITERATIONS)
     assert all(quick[k] == v for k, v in same.items())
-    five = schedules.scaled_overrides(expert, SCENE, 5 * QUICK_ITERATIONS)
+    five = schedules.scaled_overrides(expert, scene, 5 * QUICK_ITERATIONS)
     assert five["train.iterations"] == 3000
     for key in schedules.SCHEDULE_FIELDS[expert]:
-        assert five[key] == (quick[key] if quick[key] >= NEVER else 5 * quick[key]), key
-    scaled = config_for(expert, SCENE, "quick", overrides=five).config
-    assert scaled.strategy.densify_every == config_for(expert, SCENE, "quick").config.strategy.densify_every
+        assert five[key] == _times(quick[key], 5), key
+    stretched = config_for(expert, scene, "quick", overrides=five).config
+    assert stretched.train.iterations == 3000
+    for key in set(schedules.INTERVAL_FIELDS) & set(quick):  # the periods keep their quick value
+        assert _field(stretched, key) == quick[key], key
+    for key in schedules.SCHEDULE_FIELDS[expert]:
+        assert _field(stretched, key) == five[key], key
 
 
-@pytest.mark.parametrize("expert", sorted(schedules.SCHEDULE_FIELDS))
-def test_no_schedule_field_of_the_quick_reduction_is_forgotten(expert):
-    quick = config_for(expert, SCENE, "quick").reductions
-    words = ("steps", "warm_up", "_from", "_until", "reset_every", "_every", "iterations", "_at")
+def _field(config, dotted: str):
+    for name in dotted.split("."):
+        config = getattr(config, name)
+    return config
+
+
+@pytest.mark.parametrize(("expert", "scene"), CASES)
+def test_every_schedule_field_is_either_stretched_or_a_kept_period(expert, scene):
+    quick = config_for(expert, scene, "quick").reductions
+    words = ("steps", "warm_up", "_from", "_until", "_every", "iterations", "_at", "_gap")
     schedule_like = {k for k in quick if any(w in k for w in words) and k != "train.iterations"}
-    assert schedule_like == set(schedules.SCHEDULE_FIELDS[expert]) | (schedule_like & set(KEPT))
+    stretched, kept = set(schedules.SCHEDULE_FIELDS[expert]), schedule_like & set(schedules.INTERVAL_FIELDS)
+    assert not stretched & kept
+    assert schedule_like == stretched | kept
 
 
 def test_unknown_expert_names_the_table():
-    with pytest.raises(ValueError, match="no schedule table for expert 'stg'.*deformable"):
-        schedules.scaled_overrides("stg", SCENE, 600)
+    with pytest.raises(ValueError, match="no schedule table for expert 'mode'.*deformable"):
+        schedules.scaled_overrides("mode", "dnerf:mutant", 600)
+
+
+def test_a_run_length_below_one_is_refused():
+    with pytest.raises(ValueError, match="iterations must be >= 1, got 0"):
+        schedules.scaled_overrides("grid4d", "dnerf:mutant", 0)

@@ -62,8 +62,8 @@ def test_stand_ins_and_other_presets_are_not_stretched():
 
 
 def test_an_expert_without_a_schedule_table_is_refused_by_name():
-    with pytest.raises(ValueError, match="no schedule table for expert 'stg'"):
-        recipe_of(_Ctx(STANDARD), _build("stg", "n3v:coffee_martini", "n3v"))
+    with pytest.raises(ValueError, match="no schedule table for expert 'mode'"):
+        recipe_of(_Ctx(STANDARD), _build("mode", "dnerf:mutant", "dnerf"))
 
 
 def test_the_router_trains_its_full_code_schedule():
