@@ -80,7 +80,7 @@ class BenchPreset:
         adding such a field keeps the keys (and cached results) of the presets that do not use it."""
         data = asdict(self)
         for name in LATER_FIELDS:
-            if data[name] == BenchPreset.__dataclass_fields__[name].default or data[name] == {}:
+            if not data[name]:  # every later field's default is empty / None / False
                 del data[name]
         return data
 
@@ -179,7 +179,7 @@ PRESETS: dict[str, BenchPreset] = {
                 "n3v": 3000,
                 "technicolor": 3000,
                 "hypernerf": 3000,
-            },  # fmt: skip
+            },
             router_scale="paper",
             seeds=3,
             test_views=None,
