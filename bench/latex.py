@@ -98,7 +98,7 @@ def fmt(value: float, metric_name: str) -> str:
     return f"{value:.{metric(metric_name).digits}f}"
 
 
-def _fmt_delta(delta: float, metric_name: str) -> str:
+def fmt_delta(delta: float, metric_name: str) -> str:
     return f"{delta:+.{metric(metric_name).digits}f}"
 
 
@@ -142,7 +142,7 @@ def cell_tex(values: SpecValues, row: str, column: str, metric_name: str, ranks:
         return ours  # the stand-in column shows the paper's Average only beside a value of ours
     if cell.value is not None and cell.comparable:
         paper = values.paper.get(row, paper_col, metric_name)
-        return f"{ours}\\paperdelta{{{tex(printed)}}}{{{_fmt_delta(cell.value - paper, metric_name)}}}"
+        return f"{ours}\\paperdelta{{{tex(printed)}}}{{{fmt_delta(cell.value - paper, metric_name)}}}"
     return f"{ours}\\paperref{{{tex(printed)}}}"
 
 

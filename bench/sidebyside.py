@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 
-from bench.latex import MACROS, POSTAMBLE, PREAMBLE, fmt, tex
+from bench.latex import MACROS, POSTAMBLE, PREAMBLE, fmt, fmt_delta, tex
 from bench.plan import plan_spec
 from bench.presets import BenchPreset, get_preset
 from bench.spec import Spec
@@ -108,7 +108,7 @@ def _value(cell: Cell, metric: str) -> str:
 def _delta(cell: Cell, paper: float | None, metric: str) -> str:
     if cell.value is None or paper is None:
         return ""
-    return f" ({cell.value - paper:+.{2 if metric == 'PSNR' else 3}f})"
+    return f" ({fmt_delta(cell.value - paper, metric)})"
 
 
 def _markdown_cell(cell: Cell, paper: float | None, metric: str) -> str:
@@ -148,7 +148,7 @@ def render_latex(cmp: Comparison, header: str = "") -> str:
                 if cell.dynamic is not None:
                     text += f"\\dynregion{{{fmt(cell.dynamic, DYNAMIC)}}}"
                 if cell.value is not None and ref is not None:
-                    text += f"{{\\scriptsize\\,(${cell.value - ref:+.2f}$)}}"
+                    text += f"{{\\scriptsize\\,(${fmt_delta(cell.value - ref, cmp.metric)}$)}}"
                 if cell.native is not None:
                     text += f"{{\\scriptsize\\,$\\uparrow${fmt(cell.native, NATIVE)}}}"
                 cells.append(text)
