@@ -85,7 +85,8 @@ def deps(task: Task) -> list[Task]:
 
 def router_config(ctx: Any, task: Task):
     """The ``RouterConfig`` of a router build task: the preset of the bench scale (``router_scale``, else
-    the experts' scale) and convention, with the bench preset's iteration override."""
+    the experts' scale) and convention, with the bench preset's iteration override and checkpoint
+    interval (an interrupted router build resumes from its last checkpoint)."""
     from moegs.moe import RouterConfig, router_preset
 
     cfg = RouterConfig.from_preset(
@@ -98,6 +99,7 @@ def router_config(ctx: Any, task: Task):
         variant=task.params["router"],
         seed=task.seed,
         iterations=ctx.preset.steps(cfg.iterations, ctx.preset.router_steps),
+        checkpoint_every=ctx.preset.checkpoint_every,
     )
 
 

@@ -71,6 +71,7 @@ def test_the_router_trains_its_full_code_schedule():
                 "standard", 0)  # fmt: skip
     cfg = router_config(_Ctx(STANDARD), task)
     assert (cfg.iterations, cfg.optimizer, cfg.phi_kernel, cfg.train_temperature) == (5000, "radam", 1, 0.01)
+    assert cfg.checkpoint_every == STANDARD.checkpoint_every == 1000  # an interrupted router resumes
     quick = router_config(_Ctx(get_preset("quick")), replace(task, preset="quick"))
     assert quick.iterations == 150
 
