@@ -1,12 +1,12 @@
-"""Executors: run a batch of independent tasks, each in its own process, and report every outcome.
+"""Executors: start one task at a time, each in its own process, and report its outcome as a future.
 
-* ``LocalExecutor``: a ``concurrent.futures`` thread pool, each thread running
-  ``python -m bench.worker <job>`` as a subprocess with its output in the task's log.
+* ``LocalExecutor``: up to ``jobs`` workers on this machine (``python -m bench.worker <job>`` as a
+  subprocess with its output in the task's log).
 * ``SubmititExecutor``: submitit (``AutoExecutor``): Slurm on a cluster, or submitit's local executor
   (``cluster="local"``), each task a job running ``bench.worker.run_job``.
 
-Neither schedules anything itself: the runner hands them one dependency level at a time. A failed
-task is reported with its log path and never stops the others.
+Neither schedules anything: ``bench.runner`` submits a task once its dependencies are built, and never
+more than ``capacity`` at a time. A failed task is reported with its log path and never stops the others.
 """
 
 from __future__ import annotations
@@ -17,8 +17,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor, as_completed
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,9 +35,6 @@ class Outcome:
     log: Path
     seconds: float
     error: str = ""
-
-
-Progress = Callable[[Outcome], None]
 
 
 def _tail(path: Path, lines: int = 3) -> str:
@@ -62,6 +58,7 @@ class LocalExecutor:
         self.timeout = timeout
         self._running: set[subprocess.Popen] = set()
         self._lock = threading.Lock()
+        self._pool: ThreadPoolExecutor | None = None
 
     def _one(self, task: Task, workspace: Workspace) -> Outcome:
         job = write_job(workspace, task, self.threads)
@@ -99,33 +96,39 @@ class LocalExecutor:
         why = f"timed out after {self.timeout}s" if code is None else f"exit status {code}"
         return Outcome(task, False, log, seconds, f"{why}: {_tail(log)}")
 
-    def run(self, tasks: list[Task], workspace: Workspace, progress: Progress | None = None) -> list[Outcome]:
-        """Run ``tasks``; on Ctrl-C the queued ones are dropped and the running workers get SIGINT (a
-        training worker writes its checkpoint first), then ``KeyboardInterrupt`` goes on."""
-        outcomes = []
-        pool = ThreadPoolExecutor(max_workers=self.jobs)
-        try:
-            futures = [pool.submit(self._one, t, workspace) for t in tasks]
-            for fut in as_completed(futures):
-                outcome = fut.result()
-                outcomes.append(outcome)
-                if progress:
-                    progress(outcome)
-        except KeyboardInterrupt:
-            pool.shutdown(wait=False, cancel_futures=True)
-            with self._lock:
-                for proc in self._running:
-                    proc.send_signal(signal.SIGINT)
-            raise
-        finally:
-            pool.shutdown(wait=True, cancel_futures=True)
-        return outcomes
+    @property
+    def capacity(self) -> int:
+        """How many tasks run at once."""
+        return self.jobs
+
+    def submit(self, task: Task, workspace: Workspace) -> Future:
+        """Start ``task`` (queued when ``capacity`` tasks already run); the future gives its ``Outcome``."""
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=self.jobs)
+        return self._pool.submit(self._one, task, workspace)
+
+    def interrupt(self) -> None:
+        """Ctrl-C: drop the queued tasks and send SIGINT to the running workers (a training worker
+        writes its checkpoint first); :meth:`close` then waits for them."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+        with self._lock:
+            for proc in self._running:
+                proc.send_signal(signal.SIGINT)
+
+    def close(self) -> None:
+        """Wait for the running workers and release the pool."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
 
 
 class SubmititExecutor:
     """Tasks as submitit jobs: ``cluster="slurm"`` (or None: auto-detect) or ``"local"`` for testing."""
 
     name = "slurm"
+    capacity = 1_000_000
+    """Slurm queues the jobs itself: every ready task is submitted."""
 
     def __init__(
         self,
@@ -138,54 +141,45 @@ class SubmititExecutor:
         self.parameters = dict(parameters or {})
         self.threads = threads
         self.poll_seconds = poll_seconds
+        self._executor: Any = None
+        self._waiters: ThreadPoolExecutor | None = None
 
-    def run(self, tasks: list[Task], workspace: Workspace, progress: Progress | None = None) -> list[Outcome]:
+    def submit(self, task: Task, workspace: Workspace) -> Future:
+        """Submit ``task`` as a job; the future's result is its ``Outcome`` once the job ends."""
         import submitit
 
         from bench.worker import run_job
 
-        if not tasks:
-            return []
-        folder = workspace.root / "submitit" / "%j"
-        executor = submitit.AutoExecutor(folder=folder, cluster=self.cluster)
-        params = {"timeout_min": 240, "name": "moegs-bench", **self.parameters}
-        executor.update_parameters(**params)
-        jobs, starts = [], {}
-        for task in tasks:
-            job_file = write_job(workspace, task, self.threads)
-            workspace.log_path(task).parent.mkdir(parents=True, exist_ok=True)
-            job = executor.submit(run_job, str(job_file), True)
-            jobs.append((task, job))
-            starts[task.key] = time.perf_counter()
-        outcomes = []
-        pending = list(jobs)
-        while pending:
-            still = []
-            for task, job in pending:
-                if not job.done():
-                    still.append((task, job))
-                    continue
-                log = workspace.log_path(task)
-                seconds = time.perf_counter() - starts[task.key]
-                try:
-                    job.result()
-                    outcome = Outcome(task, True, log, seconds)
-                except Exception as err:  # noqa: BLE001 - the job's failure, reported with its logs
-                    outcome = Outcome(
-                        task,
-                        False,
-                        log,
-                        seconds,
-                        f"{type(err).__name__}: {str(err).strip().splitlines()[-1] if str(err) else ''}"
-                        f" (submitit log: {job.paths.stderr})",
-                    )
-                outcomes.append(outcome)
-                if progress:
-                    progress(outcome)
-            pending = still
-            if pending:
-                time.sleep(self.poll_seconds)
-        return outcomes
+        if self._executor is None:
+            self._executor = submitit.AutoExecutor(
+                folder=workspace.root / "submitit" / "%j", cluster=self.cluster
+            )
+            self._executor.update_parameters(**{"timeout_min": 240, "name": "moegs-bench", **self.parameters})
+            self._waiters = ThreadPoolExecutor(max_workers=32)
+        job_file = write_job(workspace, task, self.threads)
+        workspace.log_path(task).parent.mkdir(parents=True, exist_ok=True)
+        job = self._executor.submit(run_job, str(job_file), True)
+        return self._waiters.submit(self._wait, task, job, workspace.log_path(task), time.perf_counter())
+
+    def _wait(self, task: Task, job: Any, log: Path, start: float) -> Outcome:
+        while not job.done():
+            time.sleep(self.poll_seconds)
+        seconds = time.perf_counter() - start
+        try:
+            job.result()
+        except Exception as err:  # noqa: BLE001 - the job's failure, reported with its logs
+            last = str(err).strip().splitlines()[-1] if str(err).strip() else ""
+            why = f"{type(err).__name__}: {last} (submitit log: {job.paths.stderr})"
+            return Outcome(task, False, log, seconds, why)
+        return Outcome(task, True, log, seconds)
+
+    def interrupt(self) -> None:
+        """Ctrl-C: nothing to stop here; submitted jobs run on and the next run reuses what they finish."""
+
+    def close(self) -> None:
+        if self._waiters is not None:
+            self._waiters.shutdown(wait=False, cancel_futures=True)
+            self._executor = self._waiters = None
 
 
 def make_executor(kind: str, jobs: int = 1, **options: Any) -> LocalExecutor | SubmititExecutor:

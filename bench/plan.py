@@ -3,8 +3,8 @@
 A *slot* is one printed value's ingredient: the evaluation of one row on one scene with one seed
 (and budget). Slots whose row kind needs library pieces that do not exist get no task and carry
 ``"not implemented yet: <pieces>"``. The build tasks (scenes, experts, routers ...) that the
-evaluations need are collected and grouped into dependency levels so that an executor can run each
-level in parallel.
+evaluations need are collected with their dependency depth; ``bench.runner`` schedules them and the
+evaluations as one graph.
 """
 
 from __future__ import annotations
