@@ -120,7 +120,8 @@ def test_cli_runs_real_tables_only_into_its_own_folders(tmp_path, mutant_root, b
     assert main([*args, "--out", str(tmp_path)]) == 0
     err = capsys.readouterr().err
     assert "runs real scenes only; stand-in tables stay at quick: tab01," in err
-    assert "2 spec(s)" in err
+    assert "4 spec(s)" in err  # Tables XVI, XVII and their routers' gate figures
+    assert "fig_gates_dnerf" not in err.split("stay at quick:")[1].split("\n")[0]
     assert {p.name for p in (tmp_path / "tables" / "standard").glob("*.tex")} == {
         "tab16.tex",
         "tab17.tex",
@@ -165,11 +166,14 @@ def test_table_xvii_at_a_tiny_standard_scale(tmp_path, mutant_root, monkeypatch)
     monkeypatch.setitem(PRESETS, tiny.name, tiny)
     monkeypatch.setattr(bench.sidebyside, "COMPARED", (tiny.name, "quick"))
     ws = Workspace(tmp_path / "ws")
-    plan = make_plan(["tab17"], tiny)
+    plan = make_plan(["tab17", "fig_gates_dnerf"], tiny)
     for task in plan.eval_tasks():
         assert run_job(write_job(ws, task, None))["status"] == "ok"
         result = read_result(ws.result_path(task))
         m = result["metrics"]
+        if task.kind == "gates":  # the table's own router, on one real test view
+            assert m["gate_experts"] in (1, 2) and m["psnr"] > 10 and "gates.npz" in result["files"]
+            continue
         assert m["psnr_native"] > 10 and result["details"]["native_size"] == [800, 800]
         assert result["details"]["num_views"] == 2
     builds = [t for level in plan.build_levels() for t in level if t.kind == "expert"]
@@ -183,7 +187,8 @@ def test_table_xvii_at_a_tiny_standard_scale(tmp_path, mutant_root, monkeypatch)
 
     from bench.all import write_outputs
 
-    out = write_outputs(plan, ws, ["tab17"], tmp_path / "tables", tmp_path / "reports")
+    out = write_outputs(plan, ws, ["tab17", "fig_gates_dnerf"], tmp_path / "tables", tmp_path / "reports")
+    assert (tmp_path / "reports" / "figures" / "fig_gates_dnerf.png").is_file()
     latex = (tmp_path / "tables" / "tab17_presets.tex").read_text()
     assert check_structure(latex) == [] and r"\uparrow" in latex
     report = out["paths"]["md"].read_text()
