@@ -192,7 +192,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--workspace", type=Path, default=Path("runs") / "convergence")
     p.add_argument("--out", type=Path, default=Path("reports") / "convergence")
     p.add_argument("--force", action="store_true", help="recompute finished cells")
-    p.add_argument("--readme", type=Path, help="also rewrite this README's results:convergence section")
+    p.add_argument("--readme", type=Path, help="also rewrite this README's results:<section> section")
+    p.add_argument("--section", default="convergence", help="README section (one per scene studied)")
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
     try:
@@ -226,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{machine_line()}; minutes are wall-clock on that machine (training, loading and evaluation); "
             "'paper' is the MoE-GS paper's value at full resolution and schedule."
         )
-        update_readme(args.readme, "convergence", body)
+        update_readme(args.readme, args.section, body)
     return 0
 
 

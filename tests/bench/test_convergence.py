@@ -46,6 +46,9 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
 
     monkeypatch.setattr(convergence, "run_cell", no_training)
     assert convergence.main(args) == 0  # resumes from the cache
+    readme.write_text(written + "<!-- results:convergence-b -->\n<!-- /results:convergence-b -->\n")
+    assert convergence.main([*args, "--section", "convergence-b"]) == 0  # one README section per scene
+    assert readme.read_text().count("![convergence on dnerf:mutant]") == 2
 
 
 def test_cli_rejects_an_expert_without_a_schedule_table(capsys):
