@@ -245,18 +245,11 @@ def convergence_markdown(base: Path) -> list[str]:
 
 def presets_markdown(comparisons: list[Any]) -> list[str]:
     """The paper | standard | quick section (``bench.sidebyside.Comparison`` list; empty: no section)."""
-    from bench.sidebyside import markdown
+    from bench.sidebyside import LEGEND, markdown
 
     if not comparisons:
         return []
-    lines = [
-        "## Real scenes: paper | standard | quick",
-        "",
-        "Our value [PSNR of the dynamic region] (Δ = ours - paper) of each preset; column heads give the "
-        "resolution relative to the paper's and the expert / router training iterations (`standard`: the "
-        "quick schedules stretched, `bench.schedules`). ?: not run yet.",
-        "",
-    ]
+    lines = ["## Real scenes: paper | standard | quick", "", LEGEND, ""]
     for cmp in comparisons:
         lines += [f"### {cmp.spec.id}: {cmp.spec.title}", "", markdown(cmp), ""]
     return lines
