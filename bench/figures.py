@@ -16,10 +16,10 @@ def _trajectory(name: str, **params) -> Row:
     return Row(name, "trajectory", params)
 
 
-def _gates_figure(fid: str, dataset: str, what: str, n: int, experts: list[str]) -> Spec:
+def _gates_figure(fid: str, dataset: str, what: str, experts: list[str]) -> Spec:
     """Gate maps, each expert's render, the blend and the ground truth of one test view (the router of
     the table over ``experts`` on ``dataset``: the same build, so no extra training)."""
-    row = f"MoE-GS (N={n}) gates"
+    row = f"MoE-GS (N={len(experts)}) gates"
     return Spec(
         id=fid,
         title=f"Router gate maps, expert renders and the blend ({what})",
@@ -78,12 +78,10 @@ FIGURES: tuple[Spec, ...] = (
             ),
         ),
     ),
-    _gates_figure("fig_gates", "n3v", "Fig. n3v_qualitative", 3, list(MOE_SETS[3])),
+    _gates_figure("fig_gates", "n3v", "Fig. n3v_qualitative", list(MOE_SETS[3])),
+    _gates_figure("fig_gates_dnerf", "dnerf", "Table XVII's MoE-GS, real D-NeRF", ["deformable", "grid4d"]),
     _gates_figure(
-        "fig_gates_dnerf", "dnerf", "Table XVII's MoE-GS, real D-NeRF", 2, ["deformable", "grid4d"]
-    ),
-    _gates_figure(
-        "fig_gates_panoptic", "panoptic", "Table XVI's MoE-GS, real Panoptic", 2, ["fourdgs", "grid4d"]
+        "fig_gates_panoptic", "panoptic", "Table XVI's MoE-GS, real Panoptic", ["fourdgs", "grid4d"]
     ),
     Spec(
         id="fig_trajectories",

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass, field
 from typing import Any
@@ -72,10 +73,10 @@ def heights(graph: dict[str, list[str]]) -> dict[str, int]:
 def schedule(
     tasks: dict[str, Task],
     graph: dict[str, list[str]],
-    executor: Any,
+    executor: LocalExecutor | SubmititExecutor,
     workspace: Workspace,
-    on_outcome: Any,
-    on_blocked: Any,
+    on_outcome: Callable[[Outcome], None],
+    on_blocked: Callable[[Task, str], None],
 ) -> None:
     """Run ``tasks`` (key -> task, in priority order for ties) through ``executor``, each once every
     key in ``graph[key]`` (its dependencies among ``tasks``) finished ok, at most ``executor.capacity``

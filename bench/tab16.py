@@ -29,8 +29,8 @@ SPEC = Spec(
     notes="The metric is not printed; PSNR assumed. Basketball is the staged real scene, without its "
     "init_pt_cld.npz (the originals' initialisation): the loader's fallback points (random, seen by at "
     "least half of the training cameras) lie inside the camera ring, none on the dome's walls or much of "
-    "its floor, and renders of the held-out cameras are fog and floaters (fig_gates_panoptic). At this scale the "
-    "table compares fits without the scene's geometry, not motion models.",
+    "its floor, and renders of the held-out cameras are fog and floaters (fig_gates_panoptic). At this "
+    "scale the table compares fits without the scene's geometry, not motion models.",
 )
 
 if __name__ == "__main__":

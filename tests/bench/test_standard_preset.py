@@ -167,6 +167,8 @@ def test_table_xvii_at_a_tiny_standard_scale(tmp_path, mutant_root, monkeypatch)
     monkeypatch.setattr(bench.sidebyside, "COMPARED", (tiny.name, "quick"))
     ws = Workspace(tmp_path / "ws")
     plan = make_plan(["tab17", "fig_gates_dnerf"], tiny)
+    routers = [t for level in plan.build_levels() for t in level if t.kind == "moe"]
+    assert len(routers) == 1  # the gate figure reads the table's own router: no extra training
     for task in plan.eval_tasks():
         assert run_job(write_job(ws, task, None))["status"] == "ok"
         result = read_result(ws.result_path(task))
