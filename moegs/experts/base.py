@@ -68,7 +68,8 @@ class ExpertConfig(Presets):
     """Base of expert configs: the training settings, named presets and the recipe tables.
 
     Subclasses add their fields (each with a docstring; constants that differ from the paper or the
-    original code say where they come from), implement ``presets`` and ``quick_fields``, and fill the
+    original code say where they come from), write a ``paper_<dataset>`` classmethod per dataset config
+    of the original (see ``presets``), implement ``quick_fields``, and fill the
     recipe tables that ``moegs.recipes.config_for`` reads:
 
     * ``DATASET_PRESETS``: dataset -> the preset holding the original's config for it (``"*"``: one
@@ -86,6 +87,23 @@ class ExpertConfig(Presets):
     DEFAULT_PRESET: ClassVar[str] = "paper"
     SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {}
     BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "black"}
+
+    DEFAULT_DATASET: ClassVar[str | None] = None
+    """The dataset whose original config the field defaults are (its ``paper-<dataset>`` preset is the
+    class itself); None when the defaults are the original's code defaults only."""
+
+    @classmethod
+    def presets(cls) -> dict[str, Callable[[], Self]]:
+        """``paper`` (the field defaults), ``paper-<dataset>`` for ``DEFAULT_DATASET`` and for each
+        ``paper_<dataset>`` classmethod, and ``quick``."""
+        out: dict[str, Callable[[], Self]] = {"paper": cls}
+        if cls.DEFAULT_DATASET is not None:
+            out[f"paper-{cls.DEFAULT_DATASET}"] = cls
+        for attr in dir(cls):
+            if attr.startswith("paper_"):
+                out[f"paper-{attr.removeprefix('paper_')}"] = getattr(cls, attr)
+        out["quick"] = cls.quick
+        return out
 
     @classmethod
     def dataset_preset(cls, dataset: str) -> DatasetPreset:

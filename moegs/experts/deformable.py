@@ -20,7 +20,6 @@ Facts from ``ingra14m/Deformable-3D-Gaussians`` (``utils/time_utils.py``, ``scen
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -147,15 +146,7 @@ class DeformableConfig(StaticConfig):
     BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "black"}
     """``_white_background = False`` (``arguments/__init__.py:57``) and no ``-w`` in the README."""
 
-    @classmethod
-    def presets(cls) -> dict[str, Callable[[], DeformableConfig]]:
-        return {
-            "paper": cls,
-            "paper-dnerf": cls,
-            "paper-hypernerf": cls.paper_hypernerf,
-            "paper-n3v": cls.paper_n3v,
-            "quick": cls.quick,
-        }
+    DEFAULT_DATASET: ClassVar[str | None] = "dnerf"
 
     @classmethod
     def paper_hypernerf(cls) -> DeformableConfig:

@@ -26,7 +26,7 @@ Sources: ``JeongminB/E-D3DGS`` @ a68543e (``scene/deformation.py``, ``scene/gaus
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -365,15 +365,7 @@ class ED3DGSConfig(ExpertConfig):
         },
     }
 
-    @classmethod
-    def presets(cls) -> dict[str, Callable[[], ED3DGSConfig]]:
-        return {
-            "paper": cls,
-            "paper-n3v": cls,
-            "paper-technicolor": cls.paper_technicolor,
-            "paper-hypernerf": cls.paper_hypernerf,
-            "quick": cls.quick,
-        }
+    DEFAULT_DATASET: ClassVar[str | None] = "n3v"
 
     @classmethod
     def paper_technicolor(cls) -> ED3DGSConfig:

@@ -25,7 +25,6 @@ section 2.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
@@ -281,13 +280,9 @@ class Ex4DGSConfig(ExpertConfig):
     }
 
     @classmethod
-    def presets(cls) -> dict[str, Callable[[], Ex4DGSConfig]]:
-        return {
-            "paper": cls,
-            "paper-n3v": lambda: cls(near=4.0),
-            "paper-technicolor": cls.paper_technicolor,
-            "quick": cls.quick,
-        }
+    def paper_n3v(cls) -> Ex4DGSConfig:
+        """The defaults with N3V's near plane 4.0 (see ``near``)."""
+        return cls(near=4.0)
 
     @classmethod
     def paper_technicolor(cls) -> Ex4DGSConfig:

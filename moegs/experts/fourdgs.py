@@ -21,7 +21,7 @@ heads of switched-off outputs (``no_do`` / ``no_dshs``) are not built, so they h
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
@@ -239,15 +239,7 @@ class FourDGSConfig(StaticConfig):
         "n3v:flame_salmon": {"train.batch_size": 4},
     }
 
-    @classmethod
-    def presets(cls) -> dict[str, Callable[[], FourDGSConfig]]:
-        return {
-            "paper": cls,
-            "paper-dnerf": cls,
-            "paper-n3v": cls.paper_n3v,
-            "paper-hypernerf": cls.paper_hypernerf,
-            "quick": cls.quick,
-        }
+    DEFAULT_DATASET: ClassVar[str | None] = "dnerf"
 
     @classmethod
     def paper_n3v(cls) -> FourDGSConfig:

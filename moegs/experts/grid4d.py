@@ -245,15 +245,7 @@ class Grid4DConfig(StaticConfig):
         },
     }
 
-    @classmethod
-    def presets(cls) -> dict[str, Callable[[], Grid4DConfig]]:
-        return {
-            "paper": cls,
-            "paper-dnerf": cls,
-            "paper-n3v": cls.paper_n3v,
-            "paper-hypernerf": cls.paper_hypernerf,
-            "quick": cls.quick,
-        }
+    DEFAULT_DATASET: ClassVar[str | None] = "dnerf"
 
     @classmethod
     def paper_n3v(cls) -> Grid4DConfig:

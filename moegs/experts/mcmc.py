@@ -15,7 +15,6 @@ the nearest time when the cloud has per-point times (per-frame COLMAP), else the
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -52,10 +51,6 @@ class MCMCConfig(StaticConfig):
     strategy: Strategy = field(default_factory=lambda: MCMCStrategy(group_key=MODEL_KEY))
     """Relocation / growth / noise. ``cap_max`` is per model; the paper does not state it (the
     3DGS-MCMC README: "final #G of vanilla 3DGS"); the default is gsplat's 1M."""
-
-    @classmethod
-    def presets(cls) -> dict[str, Callable[[], MCMCConfig]]:
-        return {"paper": cls, "quick": cls.quick}
 
     @classmethod
     def quick_fields(cls, paper: MCMCConfig) -> dict[str, Any]:

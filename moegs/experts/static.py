@@ -7,7 +7,6 @@ rates, initialisation and densification are those of graphdeco 3DGS (``arguments
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -86,10 +85,6 @@ class StaticConfig(ExpertConfig):
     }
     BACKGROUNDS: ClassVar[dict[str, str]] = {"dnerf": "white", "*": "black"}
     """3DGS trains Blender-synthetic scenes with ``-w`` (README), real captures on black."""
-
-    @classmethod
-    def presets(cls) -> dict[str, Callable[[], StaticConfig]]:
-        return {"paper": cls, "quick": cls.quick}
 
     @classmethod
     def quick_fields(cls, paper: StaticConfig) -> dict[str, Any]:

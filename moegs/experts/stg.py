@@ -185,13 +185,7 @@ class STGConfig(ExpertConfig):
 
     @classmethod
     def presets(cls) -> dict[str, Callable[[], STGConfig]]:
-        return {
-            "paper": cls,
-            "paper-n3v": cls.paper_n3v,
-            "paper-technicolor": cls.paper_technicolor,
-            "quick": cls.quick,
-            "moe_sh": cls.moe_sh,
-        }
+        return {**super().presets(), "moe_sh": cls.moe_sh}
 
     @classmethod
     def paper_n3v(cls) -> STGConfig:
