@@ -7,7 +7,7 @@ figures have claims but no published numbers.
 
 from __future__ import annotations
 
-from bench.spec import EXPERTS, MOE_SETS, Claim, Row, Spec, expert, mode, moe
+from bench.spec import EXPERTS, MOE_SETS, Claim, Row, Spec, expert, mode_family, moe
 
 _FOUR = ("4DGaussians", "STG", "E-D3DGS", "Ex4DGS")  # the four experts of Fig. 1 and Fig. motion_pattern
 
@@ -24,7 +24,6 @@ def _gates_figure(fid: str, dataset: str, what: str, experts: list[str]) -> Spec
         id=fid,
         title=f"Router gate maps, expert renders and the blend ({what})",
         dataset=dataset,
-        axis="scenes",
         figure=True,
         plot="gates",
         metrics=("Gate experts", "PSNR"),
@@ -46,7 +45,6 @@ FIGURES: tuple[Spec, ...] = (
         id="fig01",
         title="Fig. 1: no single expert wins everywhere (scene / spatial / temporal)",
         dataset="n3v",
-        axis="scenes",
         figure=True,
         plot="limitations",
         metrics=("PSNR", "Winners", "Switches"),
@@ -149,7 +147,6 @@ FIGURES: tuple[Spec, ...] = (
         id="fig_mdc",
         title="Multi-view depth consistency of experts and lifted MoE-GS (Fig. MDC_ana)",
         dataset="n3v",
-        axis="scenes",
         figure=True,
         plot="mdc",
         metrics=("MDC",),
@@ -171,7 +168,6 @@ FIGURES: tuple[Spec, ...] = (
         id="fig_static_roi",
         title="Static expert: static-ROI quality, +E-D3DGS vs +3DGS-MCMC (Fig. static_expert)",
         dataset="n3v",
-        axis="scenes",
         figure=True,
         plot="paper_vs_ours",
         paper="static_roi",
@@ -212,11 +208,7 @@ FIGURES: tuple[Spec, ...] = (
         figure=True,
         plot="paper_vs_ours",
         metrics=("PSNR dynamic", "PSNR static", "PSNR"),
-        rows=(
-            expert("E-D3DGS"),
-            mode("E-D3DGS w/ 4DGaussians", "E-D3DGS", "4DGaussians"),
-            mode("E-D3DGS w/ Grid4D", "E-D3DGS", "Grid4D"),
-        ),
+        rows=mode_family("E-D3DGS", "4DGaussians", "Grid4D"),
         claims=(
             Claim(
                 "dynamic-gain",

@@ -14,7 +14,7 @@ Axes:
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
@@ -153,8 +153,8 @@ class Spec:
         id: ``tab01`` .. ``tab19`` or ``fig_*``.
         title: short description.
         dataset: ``bench.datasets`` name whose scenes the cells run on ("" for none).
-        axis: see the module docstring.
         rows: the methods.
+        axis: see the module docstring (default ``"scenes"``).
         metrics: printed metric names shown (``METRICS`` keys).
         columns: printed column names; empty -> the paper table's columns (tables) or the metrics.
         column_metric: ``"metrics"`` axis: printed column -> metric name (default: identity).
@@ -162,7 +162,8 @@ class Spec:
         seeds: seeds run for every cell; the ``"seeds"`` axis uses ``preset.seeds`` instead.
         claims: the paper's claims about this table.
         paper: id of the transcribed paper numbers (``tables/paper/<paper>.json`` or
-            ``tables/paper/text/<paper>.json``); "" when the paper prints none.
+            ``tables/paper/text/<paper>.json``); "" when the paper prints none; default: the table's
+            own id (a figure's: none).
         plot: name of a plot function in ``bench.plots`` (figures; tables get the generic bar plot).
         figure: True for figure specs (no LaTeX table).
         scenes: restrict to these loader scene names (figures about named scenes); empty = all.
@@ -174,15 +175,15 @@ class Spec:
     id: str
     title: str
     dataset: str
-    axis: str
     rows: tuple[Row, ...]
+    axis: str = "scenes"
     metrics: tuple[str, ...] = ("PSNR",)
     columns: tuple[str, ...] = ()
     column_metric: Mapping[str, str] = field(default_factory=dict)
     budgets: Mapping[str, float] = field(default_factory=dict)
     seeds: tuple[int, ...] = (0,)
     claims: tuple[Claim, ...] = ()
-    paper: str = ""
+    paper: str | None = None
     plot: str = "paper_vs_ours"
     figure: bool = False
     scenes: tuple[str, ...] = ()
@@ -197,6 +198,8 @@ class Spec:
         names = [r.name for r in self.rows]
         if len(set(names)) != len(names):
             raise ValueError(f"{self.id}: duplicate row names {names}")
+        if self.paper is None:
+            object.__setattr__(self, "paper", "" if self.figure else self.id)
         object.__setattr__(self, "column_metric", _frozen(self.column_metric))
         object.__setattr__(self, "budgets", _frozen(self.budgets))
 
@@ -236,6 +239,11 @@ def mode(name: str, base: str, added: str, **params: Any) -> Row:
     return Row(name, "mode", {"base": EXPERTS[base], "experts": [EXPERTS[base], EXPERTS[added]], **params})
 
 
+def mode_family(base: str, *added: str) -> tuple[Row, ...]:
+    """The single-deformation baseline ``base`` and its MoDE variants ``"<base> w/ <added>"``."""
+    return (expert(base), *(mode(f"{base} w/ {a}", base, a) for a in added))
+
+
 def distill(name: str, student: str, weighted: bool = True, teacher: int = 3, **params: Any) -> Row:
     """An expert distilled from MoE-GS (``teacher``-expert set), with or without routing weights."""
     return Row(
@@ -259,3 +267,21 @@ def external(name: str, why: str = "method outside the suite") -> Row:
 def moe_label(n: int) -> str:
     """Caption text for the fixed set of size ``n``, e.g. ``N=3: {ex4dgs, stg, ed3dgs}``."""
     return f"N={n}: {{{', '.join(MOE_SETS[n])}}}"
+
+
+# ------------------------------------------------------------------ claim constructors (the common forms)
+def _listing(names: Sequence[str]) -> str:
+    """``A``, ``A and B``, ``A, B and C``."""
+    return " and ".join([", ".join(names[:-1]), names[-1]] if len(names) > 1 else list(names))
+
+
+def beats_every_scene(claim_id: str, row: str, others: Sequence[str], source: str) -> Claim:
+    """``row`` beats each of ``others`` on every scene of the table (PSNR)."""
+    text = f"{row} beats {_listing(others)} on every scene"
+    return Claim(claim_id, text, "better", {"a": row, "b": list(others), "columns": "@scenes"}, source)
+
+
+def beats_on_average(claim_id: str, row: str, others: Sequence[str], source: str) -> Claim:
+    """``row`` beats each of ``others`` on the average (PSNR)."""
+    text = f"{row} has a better average than {_listing(others)}"
+    return Claim(claim_id, text, "better", {"a": row, "b": list(others)}, source)

@@ -19,7 +19,6 @@ SPEC = Spec(
     title="MoDE vs MoE-GS design trade-offs (qualitative)",
     dataset="",
     axis="none",
-    paper="tab01",
     metrics=(),
     rows=tuple(
         Row(r, "qualitative", {"evidence": e})

@@ -1,23 +1,15 @@
 """Table II (tab:mode_n3v): MoDE on N3V, three single-deformation baselines and their MoDE variants."""
 
-from bench.spec import Claim, Spec, expert, mode
+from bench.spec import Claim, Spec, mode_family
 
 SPEC = Spec(
     id="tab02",
     title="MoDE vs single-deformation baselines (N3V, PSNR)",
     dataset="n3v",
-    axis="scenes",
-    paper="tab02",
     rows=(
-        expert("4DGaussians"),
-        mode("4DGaussians w/ E-D3DGS", "4DGaussians", "E-D3DGS"),
-        mode("4DGaussians w/ Grid4D", "4DGaussians", "Grid4D"),
-        expert("Grid4D"),
-        mode("Grid4D w/ 4DGaussians", "Grid4D", "4DGaussians"),
-        mode("Grid4D w/ E-D3DGS", "Grid4D", "E-D3DGS"),
-        expert("E-D3DGS"),
-        mode("E-D3DGS w/ 4DGaussians", "E-D3DGS", "4DGaussians"),
-        mode("E-D3DGS w/ Grid4D", "E-D3DGS", "Grid4D"),
+        *mode_family("4DGaussians", "E-D3DGS", "Grid4D"),
+        *mode_family("Grid4D", "4DGaussians", "E-D3DGS"),
+        *mode_family("E-D3DGS", "4DGaussians", "Grid4D"),
     ),
     claims=(
         Claim(

@@ -9,7 +9,6 @@ SPEC = Spec(
     title="Efficiency of MoE-GS N=2 and gate-aware pruning (N3V)",
     dataset="n3v",
     axis="metrics",
-    paper="tab05",
     metrics=("PSNR", "FPS", "Memory"),
     rows=(
         expert("STG†", "STG"),

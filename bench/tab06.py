@@ -10,7 +10,6 @@ SPEC = Spec(
     title="MoE-GS router variants (N=3, N3V)",
     dataset="n3v",
     axis="metrics",
-    paper="tab06",
     metrics=("PSNR", "SSIM", "LPIPS"),
     rows=(
         moe(_PIX, 3, router="pixel"),

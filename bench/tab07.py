@@ -9,7 +9,6 @@ SPEC = Spec(
     title="Ablation of single-pass rendering and pruning (N=3, N3V)",
     dataset="n3v",
     axis="metrics",
-    paper="tab07",
     metrics=("PSNR", "FPS", "Memory"),
     rows=(
         moe(_NONE, 3, single_pass=False),

@@ -9,7 +9,6 @@ SPEC = Spec(
     title="Distilled vs retrained experts (Technicolor)",
     dataset="technicolor",
     axis="metrics",
-    paper="tab08",
     metrics=("PSNR", "SSIM", "LPIPS"),
     rows=tuple(r for e, d in _PAIRS for r in (expert(e), distill(d, e, weighted=True))),
     claims=tuple(

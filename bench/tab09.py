@@ -10,7 +10,6 @@ SPEC = Spec(
     title="Stability across repeated trainings (N3V)",
     dataset="n3v",
     axis="seeds",
-    paper="tab09",
     columns=("Min", "Max", "Average"),
     rows=(*(expert(e) for e in _EXPERTS), moe(_MOE, 3)),
     claims=(

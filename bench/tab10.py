@@ -17,7 +17,6 @@ SPEC = Spec(
     title="Expert candidate ablation (N3V)",
     dataset="n3v",
     axis="metrics",
-    paper="tab10",
     column_metric={"PSNR (dB)": "PSNR"},
     rows=(moe(_N2, 2), *(moe(name, ("ex4dgs", "stg", key)) for name, key in _THIRD.items())),
     claims=(

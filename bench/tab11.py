@@ -9,7 +9,6 @@ SPEC = Spec(
     title="MoDE vs MoE-GS: quality and training cost (N3V)",
     dataset="n3v",
     axis="metrics",
-    paper="tab11",
     metrics=("PSNR", "Time"),
     column_metric={"Train Time (h)": "Time"},
     rows=(

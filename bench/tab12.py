@@ -8,8 +8,6 @@ SPEC = Spec(
     id="tab12",
     title="Per-scene PSNR/SSIM/LPIPS on N3V",
     dataset="n3v",
-    axis="scenes",
-    paper="tab12",
     metrics=("PSNR", "SSIM", "LPIPS"),
     rows=(
         expert("4DGaussians"),

@@ -8,8 +8,6 @@ SPEC = Spec(
     id="tab13",
     title="Per-scene PSNR/SSIM/LPIPS on Technicolor",
     dataset="technicolor",
-    axis="scenes",
-    paper="tab13",
     metrics=("PSNR", "SSIM", "LPIPS"),
     rows=(
         external("DyNeRF"),

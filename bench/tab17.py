@@ -1,29 +1,15 @@
 """Table XVII (tab:dnerf_large_motion): D-NeRF, DeformableGS, Grid4D and MoE-GS N=2."""
 
-from bench.spec import Claim, Spec, expert, moe
+from bench.spec import Claim, Spec, beats_every_scene, beats_on_average, expert, moe
 
 SPEC = Spec(
     id="tab17",
     title="Large motion: D-NeRF (PSNR)",
     dataset="dnerf",
-    axis="scenes",
-    paper="tab17",
     rows=(expert("DeformableGS"), expert("Grid4D"), moe("MoE-GS (N=2)", ("deformable", "grid4d"))),
     claims=(
-        Claim(
-            "n2-every-scene",
-            "MoE-GS (N=2) consistently outperforms both experts (every scene)",
-            "better",
-            {"a": "MoE-GS (N=2)", "b": ["DeformableGS", "Grid4D"], "columns": "@scenes"},
-            "Appendix",
-        ),
-        Claim(
-            "n2-best-average",
-            "MoE-GS (N=2) has the best average",
-            "better",
-            {"a": "MoE-GS (N=2)", "b": ["DeformableGS", "Grid4D"]},
-            "Appendix",
-        ),
+        beats_every_scene("n2-every-scene", "MoE-GS (N=2)", ["DeformableGS", "Grid4D"], "Appendix"),
+        beats_on_average("n2-best-average", "MoE-GS (N=2)", ["DeformableGS", "Grid4D"], "Appendix"),
         Claim(
             "grid4d-beats-deformable",
             "Grid4D beats DeformableGS on average",

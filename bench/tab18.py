@@ -11,7 +11,6 @@ SPEC = Spec(
     title="Expert training budget (N3V)",
     dataset="n3v",
     axis="budgets",
-    paper="tab18",
     budgets=_BUDGETS,
     columns=tuple(_BUDGETS),
     rows=(*(expert(e) for e in _EXPERTS), moe(_MOE, 3)),

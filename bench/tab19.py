@@ -9,7 +9,6 @@ SPEC = Spec(
     title="Routing-weighted distillation of E-D3DGS (Technicolor)",
     dataset="technicolor",
     axis="metrics",
-    paper="tab19",
     metrics=("PSNR", "SSIM", "LPIPS"),
     column_metric={"PSNR (dB)": "PSNR"},
     rows=(

@@ -110,3 +110,31 @@ def train_hours(ctx: Any, builds: list[Task]) -> float:
         meta = ctx.meta(b)
         total += float(meta.get("train_seconds") or meta.get("build_seconds") or 0.0)
     return total / 3600.0
+
+
+def train_build(ctx: Any, task: Task, recipe: Any, out: Any) -> dict[str, Any]:
+    """Train ``recipe`` on ``task``'s scene (on the recipe's background) into ``out``; the build's record."""
+    from moegs.train.entry import train_recipe
+
+    _, result = train_recipe(recipe, ctx.scene(task, recipe.background), out, progress=ctx.progress)
+    return {
+        "train_seconds": result["train_seconds"],
+        "iterations": result["iterations"],
+        "num_gaussians": result["num_gaussians"],
+        "final_loss": result["final_loss"],
+        "train_eval_psnr": (result.get("test") or {}).get("psnr"),
+        "recipe": recipe.provenance(),
+    }
+
+
+def evaluate_model(ctx: Any, model: Any, scene: Any, builds: list[Task]) -> dict[str, Any]:
+    """The cell of one trained model (``evaluate_cell``) with its memory, the training hours of
+    ``builds`` and its number of Gaussians."""
+    from bench.cells._eval import evaluate_cell, module_megabytes
+
+    native = ctx.native_scene(scene)
+    out = evaluate_cell(expert_renderer(model, scene.background), scene, ctx.preset, native=native)
+    out["metrics"]["memory_mb"] = module_megabytes(model)
+    out["metrics"]["train_time_h"] = train_hours(ctx, builds)
+    out["details"]["num_gaussians"] = model.num_gaussians
+    return out

@@ -20,8 +20,7 @@ from typing import Any
 from bench.cells import expert as expert_kind
 from bench.cells import module_missing
 from bench.cells import moe as moe_kind
-from bench.cells._eval import evaluate_cell, module_megabytes
-from bench.cells._lib import expert_renderer, expert_task, load_trained_expert, recipe_of, train_hours
+from bench.cells._lib import evaluate_model, expert_task, load_trained_expert, recipe_of
 from bench.tasks import Task
 
 DISTILL_API = ("moegs.moe:DistillConfig", "moegs.moe:distill")
@@ -70,9 +69,4 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     scene = moe_kind.moe_scene(ctx, _teacher(task))
     build_task = artifacts(task)[0]
     student = load_trained_expert(ctx, build_task, scene)
-    native = ctx.native_scene(scene)
-    out = evaluate_cell(expert_renderer(student, scene.background), scene, ctx.preset, native=native)
-    out["metrics"]["memory_mb"] = module_megabytes(student)
-    out["metrics"]["train_time_h"] = train_hours(ctx, [build_task])
-    out["details"]["num_gaussians"] = student.num_gaussians
-    return out
+    return evaluate_model(ctx, student, scene, [build_task])

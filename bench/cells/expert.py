@@ -15,8 +15,7 @@ from typing import Any
 
 from bench.cells import LOAD_EXPERT, TRAIN_LOOP, experts_missing, module_missing
 from bench.cells import scene as scene_kind
-from bench.cells._eval import evaluate_cell, module_megabytes
-from bench.cells._lib import expert_renderer, expert_task, load_trained_expert, recipe_of
+from bench.cells._lib import evaluate_model, expert_task, load_trained_expert, recipe_of, train_build
 from bench.tasks import Task
 
 
@@ -35,28 +34,13 @@ def deps(task: Task) -> list[Task]:
 
 
 def build(task: Task, ctx: Any, out: Path) -> dict[str, Any]:
-    from moegs.train.entry import train_recipe
-
-    recipe = recipe_of(ctx, task)
-    _, result = train_recipe(recipe, ctx.scene(task, recipe.background), out, progress=ctx.progress)
-    return {
-        "train_seconds": result["train_seconds"],
-        "iterations": result["iterations"],
-        "num_gaussians": result["num_gaussians"],
-        "final_loss": result["final_loss"],
-        "train_eval_psnr": (result.get("test") or {}).get("psnr"),
-        "recipe": recipe.provenance(),
-    }
+    return train_build(ctx, task, recipe_of(ctx, task), out)
 
 
 def run(task: Task, ctx: Any) -> dict[str, Any]:
     build_task = artifacts(task)[0]
     expert = load_trained_expert(ctx, build_task)
     scene = ctx.scene(task, recipe_of(ctx, build_task).background)
-    native = ctx.native_scene(scene)
-    out = evaluate_cell(expert_renderer(expert, scene.background), scene, ctx.preset, native=native)
-    meta = ctx.meta(build_task)
-    out["metrics"]["memory_mb"] = module_megabytes(expert)
-    out["metrics"]["train_time_h"] = float(meta.get("train_seconds") or 0.0) / 3600.0
-    out["details"].update(num_gaussians=expert.num_gaussians, iterations=meta.get("iterations"))
+    out = evaluate_model(ctx, expert, scene, [build_task])
+    out["details"]["iterations"] = ctx.meta(build_task).get("iterations")
     return out

@@ -21,8 +21,7 @@ from typing import Any
 
 from bench.cells import expert_missing, experts_missing, module_missing
 from bench.cells import scene as scene_kind
-from bench.cells._eval import evaluate_cell, module_megabytes
-from bench.cells._lib import expert_renderer, load_trained_expert, recipe_of
+from bench.cells._lib import evaluate_model, load_trained_expert, recipe_of, train_build
 from bench.tasks import Task
 
 MODE_API = ("moegs.mode:MoDEExpert", "moegs.mode:MoDEConfig")
@@ -54,26 +53,11 @@ def recipe(ctx: Any, task: Task):
 
 
 def build(task: Task, ctx: Any, out: Path) -> dict[str, Any]:
-    from moegs.train.entry import train_recipe
-
-    r = recipe(ctx, task)
-    _, result = train_recipe(r, ctx.scene(task, r.background), out, progress=ctx.progress)
-    return {
-        "train_seconds": result["train_seconds"],
-        "iterations": result["iterations"],
-        "num_gaussians": result["num_gaussians"],
-        "recipe": r.provenance(),
-    }
+    return train_build(ctx, task, recipe(ctx, task), out)
 
 
 def run(task: Task, ctx: Any) -> dict[str, Any]:
     build_task = artifacts(task)[0]
     scene = ctx.scene(task, recipe(ctx, build_task).background)
     model = load_trained_expert(ctx, build_task, scene)
-    native = ctx.native_scene(scene)
-    out = evaluate_cell(expert_renderer(model, scene.background), scene, ctx.preset, native=native)
-    meta = ctx.meta(build_task)
-    out["metrics"]["memory_mb"] = module_megabytes(model)
-    out["metrics"]["train_time_h"] = float(meta.get("train_seconds") or 0.0) / 3600.0
-    out["details"]["num_gaussians"] = model.num_gaussians
-    return out
+    return evaluate_model(ctx, model, scene, [build_task])

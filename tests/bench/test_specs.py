@@ -136,3 +136,36 @@ def test_listing_imports_no_torch():
         "from bench.all import list_table; list_table(); assert 'torch' not in sys.modules, 'torch imported'"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_claim_constructors_build_the_common_forms():
+    from bench.spec import beats_every_scene, beats_on_average
+
+    every = beats_every_scene("n2-every-scene", "MoE-GS (N=2)", ["Ex4DGS", "STG†"], "Table III")
+    assert (every.check, dict(every.args)) == (
+        "better",
+        {"a": "MoE-GS (N=2)", "b": ["Ex4DGS", "STG†"], "columns": "@scenes"},
+    )
+    assert every.text == "MoE-GS (N=2) beats Ex4DGS and STG† on every scene"
+    average = beats_on_average("n3-gt-n2", "MoE-GS (N=3)", ["MoE-GS (N=2)"], "Table III")
+    assert dict(average.args) == {"a": "MoE-GS (N=3)", "b": ["MoE-GS (N=2)"]}
+    assert average.text == "MoE-GS (N=3) has a better average than MoE-GS (N=2)"
+    three = beats_every_scene("x", "MoE-GS (N=3)", ["STG", "E-D3DGS", "Ex4DGS"], "Table IV")
+    assert three.text == "MoE-GS (N=3) beats STG, E-D3DGS and Ex4DGS on every scene"
+
+
+def test_mode_family_is_the_baseline_and_its_variants():
+    from bench.spec import mode_family
+
+    rows = mode_family("Grid4D", "4DGaussians", "E-D3DGS")
+    assert [r.name for r in rows] == ["Grid4D", "Grid4D w/ 4DGaussians", "Grid4D w/ E-D3DGS"]
+    assert [r.kind for r in rows] == ["expert", "mode", "mode"]
+    assert rows[2].params["experts"] == ["grid4d", "ed3dgs"] and rows[2].params["base"] == "grid4d"
+
+
+def test_paper_numbers_default_to_the_table_id_and_figures_have_none():
+    from bench.spec import Spec, expert
+
+    assert Spec(id="tab99", title="t", dataset="n3v", rows=(expert("STG"),)).paper == "tab99"
+    figure = Spec(id="fig_x", title="t", dataset="n3v", rows=(expert("STG"),), figure=True)
+    assert figure.paper == "" and figure.axis == "scenes"
