@@ -4,7 +4,8 @@ Every view is scored on the full image and, when it has a mask (``View.mask()``:
 dynamic mask, D-NeRF's object alpha, Panoptic's foreground segmentation), on its **dynamic** region
 (mask > 0.5) and its **static** complement: PSNR over the region's pixels, SSIM and LPIPS as the
 region-weighted means of their spatial maps. Keys: ``psnr``, ``ssim``, ``lpips`` and
-``<metric>_dynamic`` / ``<metric>_static``.
+``<metric>_dynamic`` / ``<metric>_static``; ``motion_r2``, over the test cameras seen at several times,
+says how much of the dynamic region's change over time the renders reproduce (``moegs.metrics.motion``).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from moegs.camera import Camera
 from moegs.data.scene import View
 from moegs.experts.base import Expert
 from moegs.metrics import evaluate_images
+from moegs.metrics.motion import MotionCapture
 
 METRICS = ("psnr", "ssim", "lpips")
 REGIONS = ("dynamic", "static")
@@ -83,18 +85,24 @@ def evaluate_renderer(
     """Mean ``KEYS`` of ``render(camera) -> [H, W, 3]`` over ``views`` and the per-view values.
 
     Returns:
-        ``{**KEYS, "lpips_unavailable", "profile", "num_views", "region_masks", "per_view": [{"key",
-        "time", **KEYS}]}``; ``region_masks`` says whether any view had a mask.
+        ``{**KEYS, "motion_r2", "lpips_unavailable", "profile", "num_views", "region_masks", "per_view":
+        [{"key", "time", **KEYS}]}``; ``motion_r2`` is the temporal R² of the dynamic region
+        (``moegs.metrics.motion``; None without a camera seen at several times with masks);
+        ``region_masks`` says whether any view had a mask.
     """
     if not views:
         raise ValueError("evaluate_renderer needs at least one view")
-    per_view, unavailable, prof = [], None, None
+    per_view, unavailable, prof, motion = [], None, None, MotionCapture()
     for view in views:
-        scores = score_image(render(view.camera), view.image(), view.mask() if regions else None, profile)
+        image, target, mask = render(view.camera), view.image(), view.mask() if regions else None
+        scores = score_image(image, target, mask, profile)
+        if mask is not None:
+            motion.add(view.camera, image, target, mask)
         unavailable, prof = scores.pop("lpips_unavailable"), scores.pop("profile")
         per_view.append({"key": view.key, "time": float(view.camera.time), **scores})
     return {
         **mean_scores(per_view),
+        "motion_r2": motion.value(),
         "lpips_unavailable": unavailable,
         "profile": prof,
         "num_views": len(views),
