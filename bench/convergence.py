@@ -56,6 +56,7 @@ def run_cell(expert: str, scene_name: str, resolution: float, iterations: int, p
         "psnr": test["psnr"],
         "psnr_dynamic": test.get("psnr_dynamic"),
         "psnr_static": test.get("psnr_static"),
+        "motion_r2": test.get("motion_r2"),
         "ssim": test["ssim"],
         "lpips": test["lpips"],
         "psnr_native": None,
@@ -105,30 +106,33 @@ def run_study(
 def markdown(records: list[dict], paper: dict[str, float]) -> str:
     """One row per cell, with the paper's value of the expert when known."""
     lines = [
-        "| expert | resolution | iterations | minutes | Gaussians | PSNR | PSNR dynamic | PSNR upsampled to "
-        "native | paper |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| expert | resolution | iterations | minutes | Gaussians | PSNR | PSNR dynamic | motion R² | PSNR "
+        "upsampled to native | paper |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in sorted(records, key=lambda r: (r["expert"], r["resolution_scale"], r["iterations"])):
         size = "x".join(map(str, r["image_size"]))
         native = f"{r['psnr_native']:.2f}" if r.get("psnr_native") is not None else "-"
         dyn = f"{r['psnr_dynamic']:.2f}" if r.get("psnr_dynamic") is not None else "-"
+        r2 = f"{r['motion_r2']:.2f}" if r.get("motion_r2") is not None else "-"
         ref = f"{paper[r['expert']]:.2f}" if r["expert"] in paper else "-"
         lines.append(
             f"| {r['expert']} | {r['resolution_scale']:g} ({size}) | {r['iterations']} | "
-            f"{r['minutes']:.1f} | {r['num_gaussians']} | {r['psnr']:.2f} | {dyn} | {native} | {ref} |"
+            f"{r['minutes']:.1f} | {r['num_gaussians']} | {r['psnr']:.2f} | {dyn} | {r2} | {native} | {ref} |"
         )
     return "\n".join(lines)
 
 
 def plot(records: list[dict], paper: dict[str, float], title: str, path: Path) -> Path:
-    """PSNR against iterations (left) and against minutes (right), one line per expert and resolution."""
+    """PSNR against iterations (left) and against minutes (middle), one line per expert and resolution;
+    where the scene has dynamic masks, also the dynamic region's PSNR against iterations (right)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    dynamic = any(r.get("psnr_dynamic") is not None for r in records)
+    fig, axes = plt.subplots(1, 3 if dynamic else 2, figsize=(16 if dynamic else 11, 4))
     groups: dict[tuple[str, float], list[dict]] = {}
     for r in records:
         groups.setdefault((r["expert"], r["resolution_scale"]), []).append(r)
@@ -144,16 +148,29 @@ def plot(records: list[dict], paper: dict[str, float], title: str, path: Path) -
         axes[1].plot(
             [r["minutes"] for r in rows], psnrs, style, marker="o", color=colors[expert], label=label
         )
+        if dynamic:
+            axes[2].plot(
+                [r["iterations"] for r in rows],
+                [r.get("psnr_dynamic") for r in rows],
+                style,
+                marker="o",
+                color=colors[expert],
+                label=label,
+            )
     for expert, value in paper.items():
         if expert in colors:
             for ax in axes:
                 ax.axhline(value, color=colors[expert], lw=0.8, ls=":")
-    axes[0].set_xscale("log")
     axes[0].set_xlabel("training iterations (quick schedules scaled)")
     axes[1].set_xlabel("wall minutes on this machine (train + load + evaluation)")
     for ax in axes:
         ax.set_ylabel("test PSNR (dB)")
         ax.grid(alpha=0.3)
+    if dynamic:
+        axes[2].set_xlabel("training iterations (quick schedules scaled)")
+        axes[2].set_ylabel("test PSNR of the dynamic region (dB)")
+        axes[2].set_xscale("log")
+    axes[0].set_xscale("log")
     axes[0].legend(fontsize=7)
     fig.suptitle(title + " (dotted: paper, full resolution and schedule)", fontsize=9)
     fig.tight_layout()

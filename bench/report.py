@@ -168,6 +168,23 @@ def _num(x: float | None, digits: int = 2) -> str:
     return "–" if x is None else f"{x:.{digits}f}"
 
 
+def motion_lines(experts: list[dict[str, Any]]) -> list[str]:
+    """One bullet per scene whose expert cells report a motion R²: its range and the best expert."""
+    by_scene: dict[str, list[tuple[float, str]]] = {}
+    for r in experts:
+        if r.get("motion_r2") is not None:
+            by_scene.setdefault(r["scene"], []).append((r["motion_r2"], r["expert"]))
+    lines = []
+    for scene, values in sorted(by_scene.items()):
+        low, high = min(values), max(values)
+        lines.append(
+            f"- **Motion on {scene}**: the experts reproduce {low[0]:.2f} ({low[1]}) to {high[0]:.2f} "
+            f"({high[1]}) of the dynamic region's change over time (motion R², 1 = all of it). Claims "
+            "about motion on this scene compare models of that much of the motion."
+        )
+    return lines
+
+
 def signals_markdown(signals: dict[str, Any]) -> list[str]:
     """The run's motion, routing and noise evidence (``bench.signals``) as markdown lines."""
     noise = signals.get("noise") or {}
@@ -183,20 +200,25 @@ def signals_markdown(signals: dict[str, Any]) -> list[str]:
     else:
         lines.append("- **Noise**: no stability run with two finished seeds: claims are not noise-aware.")
     experts = signals.get("experts") or []
+    lines += motion_lines(experts)
     if experts:
         lines += [
             "",
             "Every expert cell (seed 0), PSNR on the full image, the dynamic region and the static region "
-            "(stand-ins: ground-truth dynamic masks; D-NeRF: object alpha; Panoptic: foreground masks):",
+            "(stand-ins: ground-truth dynamic masks; D-NeRF: object alpha; Panoptic: foreground masks). "
+            "Motion R² = the share of the dynamic region's change over time that the renders reproduce, "
+            "at the test cameras seen at several times (0: a render that does not move, 1: the ground "
+            "truth's motion exactly; `moegs.metrics.motion`; – where no test camera repeats with masks):",
             "",
-            "| scene | dataset recipe | expert | PSNR full | PSNR dynamic | PSNR static | LPIPS dynamic |",
-            "|---|---|---|---|---|---|---|",
+            "| scene | dataset recipe | expert | PSNR full | PSNR dynamic | PSNR static | LPIPS dynamic "
+            "| motion R² |",
+            "|---|---|---|---|---|---|---|---|",
         ]
         for r in experts:
             p, lp = r["psnr"], r["lpips"]
             lines.append(
                 f"| {r['scene']} | {r['dataset']} | {r['expert']} | {_num(p['full'])} | {_num(p['dynamic'])} "
-                f"| {_num(p['static'])} | {_num(lp['dynamic'], 3)} |"
+                f"| {_num(p['static'])} | {_num(lp['dynamic'], 3)} | {_num(r.get('motion_r2'))} |"
             )
     routing = signals.get("routing") or []
     if routing:

@@ -1,7 +1,8 @@
 """What the run says about motion, routing and noise, read back from result JSONs (no torch).
 
 * ``expert_rows``: every expert cell's PSNR / SSIM / LPIPS on the full image, the dynamic region and the
-  static region (one row per expert, scene and dataset recipe; seed 0, full training budget);
+  static region, and how much of the dynamic region's change over time it reproduces (temporal R²; one
+  row per expert, scene and dataset recipe; seed 0, full training budget);
 * ``routing_rows``: every MoE-GS cell's routing signal (``moegs.moe.winner_coherence`` of the winner map,
   and the share of dynamic / static pixels each expert wins);
 * ``seed_noise``: the seed-to-seed spread of the stability runs (the ``seeds``-axis specs): the largest
@@ -44,8 +45,9 @@ def _regions(metrics: dict[str, Any], name: str) -> dict[str, float | None]:
 
 def expert_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
     """``[{"scene", "dataset", "expert", "preset", "psnr": {"full", "dynamic", "static"}, "ssim": ...,
-    "lpips": ...}]``
-    of the seed-0, full-budget expert cells."""
+    "lpips": ..., "motion_r2"}]`` of the seed-0, full-budget expert cells (``motion_r2``: the temporal R²
+    of the dynamic region, ``moegs.metrics.motion``; None where no test camera is seen at several times
+    with masks)."""
     rows: dict[tuple[str, str, str], dict[str, Any]] = {}
     for _sp, slot, result in _ok_results(plan, workspace, "expert"):
         task = slot.task
@@ -61,6 +63,7 @@ def expert_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
                 "expert": task.params["expert"],
                 "preset": task.preset,
                 **{name: _regions(m, name) for name in ("psnr", "ssim", "lpips")},
+                "motion_r2": m.get("motion_r2"),
             },
         )
     return sorted(rows.values(), key=lambda r: (r["scene"], r["dataset"] or "", r["expert"]))

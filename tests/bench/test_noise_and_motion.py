@@ -91,3 +91,16 @@ def test_region_shares_count_winners_inside_and_outside_the_mask():
     shares = region_shares(gates, mask)
     assert shares["dynamic"] == [0.0, 1.0]
     assert shares["static"] == pytest.approx([50 / 70, 20 / 70])
+
+
+def test_report_states_how_much_motion_the_experts_reproduce():
+    from bench.report import motion_lines
+
+    rows = [
+        {"scene": "synthetic:n3v_like", "expert": "fourdgs", "motion_r2": 0.08},
+        {"scene": "synthetic:n3v_like", "expert": "stg", "motion_r2": 0.36},
+        {"scene": "dnerf:mutant", "expert": "grid4d", "motion_r2": None},
+    ]
+    (line,) = motion_lines(rows)
+    assert "synthetic:n3v_like" in line and "0.08 (fourdgs) to 0.36 (stg)" in line
+    assert motion_lines([rows[2]]) == []
