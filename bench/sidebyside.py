@@ -159,7 +159,8 @@ def render_latex(cmp: Comparison, header: str = "") -> str:
         f"{cmp.spec.title}: the paper and our two CPU presets side by side ({cmp.metric}; our value, "
         "[x] the PSNR of the dynamic region, (Δ = ours - paper), and where scored, after an up-arrow, the "
         "PSNR of our render upsampled (bicubic) to the native resolution). Column heads: preset, "
-        "resolution relative to the native one, expert / router training iterations. ?: not run yet."
+        "resolution relative to the native one, expert / router training iterations. ?: no result of this "
+        "library version (not run yet, or only by an older one)."
     )
     return (
         "\n".join(
@@ -200,7 +201,8 @@ def real_scene_comparisons(workspace: Workspace) -> list[Comparison]:
 LEGEND = (
     "Our value [PSNR of the dynamic region] (Δ = ours - paper) of each preset; column heads give the "
     "resolution relative to the paper's and the expert / router training iterations (`standard`: the "
-    "quick schedules stretched, `bench.schedules`). ?: not run yet."
+    "quick schedules stretched, `bench.schedules`). ?: no result of this library version (not run yet, "
+    "or only by an older one: a committed `reports/standard/` names the commit it comes from)."
 )
 """How to read a comparison table (the reports and the README)."""
 
