@@ -172,7 +172,7 @@ def plot(records: list[dict], paper: dict[str, float], title: str, path: Path) -
         axes[2].set_xscale("log")
     axes[0].set_xscale("log")
     axes[0].legend(fontsize=7)
-    fig.suptitle(title + " (dotted: paper, full resolution and schedule)", fontsize=9)
+    fig.suptitle(title + (" (dotted: paper, full resolution and schedule)" if paper else ""), fontsize=9)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

@@ -249,9 +249,10 @@ def convergence_studies(base: Path) -> list[tuple[Path, Path]]:
 
 
 CONVERGENCE_NOTE = (
-    "Real scenes trained beyond the quick preset (`python -m bench.convergence`): quick schedules scaled "
+    "Scenes trained beyond the quick preset (`python -m bench.convergence`): quick schedules scaled "
     "to N iterations, every test view; 'upsampled to native' renders at the training resolution and "
-    "upsamples (bicubic) to the dataset's resolution. Not part of the tables above."
+    "upsamples (bicubic) to the dataset's resolution; motion R² as in the section above. Not part of the "
+    "tables above."
 )
 
 
@@ -259,7 +260,7 @@ def convergence_markdown(base: Path) -> list[str]:
     studies = convergence_studies(base)
     if not studies:
         return []
-    lines = ["## Convergence of the real scenes", "", CONVERGENCE_NOTE, ""]
+    lines = ["## Convergence beyond the quick preset", "", CONVERGENCE_NOTE, ""]
     for figure, table in studies:
         lines += [f"![{figure.stem}](convergence/{figure.name})", "", table.read_text().strip(), ""]
     return lines
@@ -393,7 +394,7 @@ def render_html(reports: list[SpecReport], header: dict[str, Any], base: Path | 
     out.append("</table>")
     studies = convergence_studies(base) if base is not None else []
     if studies:
-        out += ["<h2>Convergence of the real scenes</h2>", f"<p>{e(CONVERGENCE_NOTE)}</p>"]
+        out += ["<h2>Convergence beyond the quick preset</h2>", f"<p>{e(CONVERGENCE_NOTE)}</p>"]
         for figure, table in studies:
             out += [_img(str(figure)), f"<pre>{e(table.read_text())}</pre>"]
     for rep in reports:
