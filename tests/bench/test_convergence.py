@@ -17,7 +17,7 @@ SCENE = "dnerf:mutant"
 def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     out = tmp_path / "reports" / "convergence"
     readme = tmp_path / "README.md"
-    readme.write_text("# x\n<!-- results:convergence -->\nold\n<!-- /results:convergence -->\n")
+    readme.write_text("# x\n<!-- results:convergence -->\nSTALE-BODY\n<!-- /results:convergence -->\n")
     args = ["--scene", SCENE, "--experts", "static", "--iterations", "10,20", "--resolutions", "0.0625",
             "--workspace", str(tmp_path / "ws"), "--out", str(out), "--no-progress",
             "--readme", str(readme)]  # fmt: skip
@@ -28,13 +28,14 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     for c in cells:
         assert c["image_size"] == [50, 50] and c["native_size"] == [800, 800] and c["test_views"] == 20
         assert c["psnr"] > 10 and c["psnr_dynamic"] is not None and c["psnr_native"] > 10
+        assert c["motion_r2"] is None  # D-NeRF's test views never repeat a camera
         assert c["recipe"]["overrides"]["train.iterations"] == c["iterations"]
     assert (out / "dnerf_mutant.png").stat().st_size > 10_000
     assert "| static | 0.0625 (50x50) | 10 |" in (out / "dnerf_mutant.md").read_text()
 
     written = readme.read_text()
     assert (
-        "old" not in written
+        "STALE-BODY" not in written
         and "![convergence on dnerf:mutant](reports/convergence/dnerf_mutant.png)" in written
     )
     assert "| static | 0.0625 (50x50) | 20 |" in written and "python -m bench.convergence --scene" in written

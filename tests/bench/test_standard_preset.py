@@ -202,10 +202,10 @@ def test_table_xvii_at_a_tiny_standard_scale(tmp_path, mutant_root, monkeypatch)
     assert {r["preset"] for r in summary["experts"]} == {"standard-test"}
 
     readme = tmp_path / "README.md"
-    readme.write_text("# x\n<!-- results:standard -->\nold\n<!-- /results:standard -->\n")
+    readme.write_text("# x\n<!-- results:standard -->\nSTALE-BODY\n<!-- /results:standard -->\n")
     assert bench.sidebyside.main(["--workspace", str(ws.root), "--readme", str(readme)]) == 0
     written = readme.read_text()
-    assert "old" not in written and "tab17: Large motion: D-NeRF (PSNR)" in written
+    assert "STALE-BODY" not in written and "tab17: Large motion: D-NeRF (PSNR)" in written
     assert "| DeformableGS | Mutant | 42.03 |" in written and "upsampled to native" in written
 
 
