@@ -1,9 +1,11 @@
-"""Adapters to the library used by several kinds: recipes of build tasks, loading and rendering experts."""
+"""Adapters to the library used by several kinds: recipes of build tasks, training, loading, rendering and
+scoring experts."""
 
 from __future__ import annotations
 
 from typing import Any
 
+from bench.cells._eval import evaluate_cell, module_megabytes
 from bench.tasks import Task
 
 RUN_FIELDS = (
@@ -130,8 +132,6 @@ def train_build(ctx: Any, task: Task, recipe: Any, out: Any) -> dict[str, Any]:
 def evaluate_model(ctx: Any, model: Any, scene: Any, builds: list[Task]) -> dict[str, Any]:
     """The cell of one trained model (``evaluate_cell``) with its memory, the training hours of
     ``builds`` and its number of Gaussians."""
-    from bench.cells._eval import evaluate_cell, module_megabytes
-
     native = ctx.native_scene(scene)
     out = evaluate_cell(expert_renderer(model, scene.background), scene, ctx.preset, native=native)
     out["metrics"]["memory_mb"] = module_megabytes(model)
