@@ -1,14 +1,15 @@
-"""Build of the compiled CPU compositing kernel (all other metadata lives in pyproject.toml).
+"""Build of the compiled CPU library (all other metadata lives in pyproject.toml).
 
-``moegs/render/_cpu/raster.c`` is plain C + OpenMP with no Python or torch headers; it is loaded
-with ctypes, never imported. It is declared as a setuptools ``Extension`` only because that is the
-portable way to get a compiled shared library built and installed by ``pip install .`` and
-``pip install -e .`` (build_ext handles the compiler, in-place editable builds and wheel tagging).
-The C file exports a stub ``PyInit__raster`` so linkers that expect one are satisfied.
+``moegs/kernels/*.c`` (compositing and hash encoding) are plain C + OpenMP with no Python or torch
+headers; the library is loaded with ctypes, never imported. It is declared as a setuptools
+``Extension`` only because that is the portable way to get a compiled shared library built and
+installed by ``pip install .`` and ``pip install -e .`` (build_ext handles the compiler, in-place
+editable builds and wheel tagging). ``raster.c`` exports a stub ``PyInit__cpu`` so linkers that
+expect one are satisfied.
 
 The extension is ``optional``: without a C compiler the install still succeeds and moegs falls back
-to the pure-torch compositor (``moegs.render._cpu.is_available()`` is then False). No torch is
-needed at build time.
+to its pure-torch references (``moegs.kernels.is_available()`` is then False). No torch is needed
+at build time.
 """
 
 from __future__ import annotations
@@ -20,10 +21,10 @@ import tempfile
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 
-# flags shared with `python -m moegs.render._cpu build`; loaded by path so that building never
+# flags and sources shared with `python -m moegs.kernels build`; loaded by path so that building never
 # imports the moegs package (which needs torch)
 _HERE = os.path.dirname(os.path.abspath(__file__))
-_flags = runpy.run_path(os.path.join(_HERE, "moegs", "render", "_cpu", "_build.py"))
+_flags = runpy.run_path(os.path.join(_HERE, "moegs", "kernels", "_build.py"))
 
 
 def _has_openmp(compiler) -> bool:
@@ -47,7 +48,7 @@ class BuildExt(build_ext):
         elif _has_openmp(self.compiler):
             compile_args, link_args = _flags["COMPILE_ARGS"], _flags["LINK_ARGS"]
         else:
-            print("moegs: C compiler has no OpenMP; building the CPU kernel single-threaded")
+            print("moegs: C compiler has no OpenMP; building the CPU kernels single-threaded")
             compile_args, link_args = _flags["COMPILE_ARGS_NO_OPENMP"], _flags["LINK_ARGS_NO_OPENMP"]
         for ext in self.extensions:
             ext.extra_compile_args = list(compile_args)
@@ -58,8 +59,8 @@ class BuildExt(build_ext):
 setup(
     ext_modules=[
         Extension(
-            "moegs.render._cpu._raster",
-            sources=["moegs/render/_cpu/raster.c"],
+            f"moegs.kernels.{_flags['LIBRARY']}",
+            sources=[f"moegs/kernels/{name}" for name in _flags["SOURCES"]],
             optional=True,
         )
     ],

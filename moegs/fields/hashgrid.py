@@ -19,6 +19,11 @@ Facts from ``JiaweiXu8/Grid4D`` (``hashencoder/``, torch-ngp style; ``specs/expe
   Either way the index is taken ``mod T_l``.
 * Table init ``U(-1e-4, 1e-4)``; output is level-major ``[N, L * F]``.
 
+On CPU, :class:`HashGrid` runs the compiled kernel of ``moegs/kernels/hashgrid.c`` (same float32
+operations in the same order: the forward is bit-identical to :meth:`HashGrid.encode_reference`, the
+table gradient equal up to the order of its sums) unless the input needs a gradient, which only the
+reference computes; elsewhere, or without the compiled library, the reference runs.
+
 :class:`DecomposedHashGrid4D` is Grid4D's 4D encoder: one spatial grid over xyz and three
 spatio-temporal 3D grids over (x, y, t), (y, z, t), (x, z, t).
 """
@@ -31,6 +36,9 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 from torch import Tensor, nn
+from torch.autograd.function import once_differentiable
+
+from moegs import kernels
 
 PRIMES = (1, 2654435761, 805459861)
 UINT32_MASK = 0xFFFFFFFF
@@ -122,6 +130,19 @@ class HashGrid(nn.Module):
     def forward(self, u: Tensor) -> Tensor:
         if u.ndim != 2 or u.shape[1] != self.input_dim:
             raise ValueError(f"HashGrid expects u [N, {self.input_dim}], got {list(u.shape)}")
+        compiled = (
+            u.device.type == "cpu"
+            and u.dtype == torch.float32
+            and self.embeddings.dtype == torch.float32
+            and not (u.requires_grad and torch.is_grad_enabled())
+            and kernels.is_available()
+        )
+        if compiled:
+            return _CompiledEncoding.apply(u.contiguous(), self.embeddings, self)
+        return self.encode_reference(u)
+
+    def encode_reference(self, u: Tensor) -> Tensor:
+        """Pure-torch encoding ``u [N, D] -> [N, L * F]``, differentiable w.r.t. ``u`` and the tables."""
         n = u.shape[0]
         inside = ((u >= 0.0) & (u <= 1.0)).all(-1)  # [N]
         pos = u.clamp(0.0, 1.0)[:, None, :] * self.scales  # [N, L, D]
@@ -141,6 +162,18 @@ class HashGrid(nn.Module):
             out = term if out is None else out + term
         return (out * inside[:, None, None]).flatten(1)
 
+    def kernel_arguments(self) -> list[int]:
+        """Pointers to the level constants, in the order of ``moegs_hashgrid_forward``'s arguments."""
+        if not hasattr(self, "_constants") or self._constants[0].device != self.scales.device:
+            self._constants = (
+                self.scales.contiguous(),
+                self.strides.contiguous(),
+                self.sizes.contiguous(),
+                self.offsets[:-1].contiguous(),
+                self.dense.to(torch.uint8).contiguous(),
+            )
+        return [t.data_ptr() for t in self._constants]
+
     def extra_repr(self) -> str:
         hashed = int((~self.dense).sum())
         return (
@@ -148,6 +181,38 @@ class HashGrid(nn.Module):
             f"level_dim={self.level_dim}, base={self.base}, desired={self.desired}, "
             f"log2_T={self.log2_hashmap_size}, params={self.embeddings.numel()}"
         )
+
+
+class _CompiledEncoding(torch.autograd.Function):
+    """``u [N, D]`` (no gradient), ``table [T, F]`` -> ``[N, L * F]`` with the compiled kernel."""
+
+    @staticmethod
+    def forward(ctx, u: Tensor, table: Tensor, grid: HashGrid) -> Tensor:
+        lib = kernels.library()
+        out = torch.empty(u.shape[0], grid.out_dim, dtype=torch.float32)
+        dims = (u.shape[0], grid.input_dim, grid.num_levels, grid.level_dim, torch.get_num_threads())
+        rows = table.detach().contiguous()  # bound to a name: it must outlive the call
+        code = lib.moegs_hashgrid_forward(
+            *dims, *grid.kernel_arguments(), u.data_ptr(), rows.data_ptr(), out.data_ptr()
+        )
+        kernels.check(code, "hash encoding forward")
+        ctx.save_for_backward(u)
+        ctx.grid, ctx.dims, ctx.table_shape = grid, dims, table.shape
+        return out
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad_out: Tensor) -> tuple[None, Tensor | None, None]:
+        if not ctx.needs_input_grad[1]:
+            return None, None, None
+        (u,) = ctx.saved_tensors
+        grad_out = grad_out.to(torch.float32).contiguous()  # bound to a name: it must outlive the call
+        grad_table = torch.zeros(ctx.table_shape, dtype=torch.float32)
+        code = kernels.library().moegs_hashgrid_backward(
+            *ctx.dims, *ctx.grid.kernel_arguments(), u.data_ptr(), grad_out.data_ptr(), grad_table.data_ptr()
+        )
+        kernels.check(code, "hash encoding backward")
+        return None, grad_table, None
 
 
 class DecomposedHashGrid4D(nn.Module):

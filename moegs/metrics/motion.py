@@ -62,12 +62,13 @@ class MotionCapture:
             )
         g = target.detach().to("cpu", torch.float64)
         d = image.detach().to("cpu", torch.float64).clamp(0.0, 1.0) - g
-        sums = self._cameras.get(self._key(camera))
+        key = self._key(camera)
+        sums = self._cameras.get(key)
         if sums is None:
             plane = torch.zeros(g.shape[:2], dtype=torch.float64)
             region = torch.zeros(g.shape[:2], dtype=torch.bool)
             sums = _Sums(torch.zeros_like(g), plane, torch.zeros_like(g), plane.clone(), region)
-            self._cameras[self._key(camera)] = sums
+            self._cameras[key] = sums
         sums.residual += d
         sums.residual_sq += (d * d).sum(-1)
         sums.target += g

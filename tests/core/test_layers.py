@@ -37,6 +37,7 @@ def test_the_check_sees_nested_imports(tmp_path):
 
 
 LAYERS = (
+    ("kernels",),
     ("camera", "gaussians", "fields", "errors", "paths"),
     ("render", "data", "metrics", "io"),
     (

@@ -70,7 +70,7 @@ def require_cpu_kernel():
     """Skip the test, with the reason, unless the compiled CPU kernel can run."""
     kernel, reason = _cpu_kernel()
     if kernel is None:
-        pytest.skip(f"{reason}; build it with `python -m moegs.render._cpu build`")
+        pytest.skip(f"{reason}; build it with `python -m moegs.kernels build`")
 
 
 @pytest.fixture(params=["torch", "cpu"])

@@ -12,13 +12,14 @@ import math
 import pytest
 import torch
 
+from moegs import kernels
 from moegs.render import _cpu
 from moegs.render._torch import ALPHA_MAX, _composite
 
 pytestmark = pytest.mark.skipif(
     not _cpu.is_available(),
     reason=f"compiled CPU kernel not available ({_cpu.load_error()}); "
-    "build it with `pip install -e .` or `python -m moegs.render._cpu build`",
+    "build it with `pip install -e .` or `python -m moegs.kernels build`",
 )
 
 
@@ -229,7 +230,7 @@ def test_loader_reports_why_when_disabled(monkeypatch):
     """MOEGS_DISABLE_CPU_KERNEL forces the fallback and load_error() says so."""
     assert _cpu.library_path() is not None and _cpu.load_error() is None
     monkeypatch.setenv("MOEGS_DISABLE_CPU_KERNEL", "1")
-    _cpu._reset()
+    kernels.reset()
     try:
         assert not _cpu.is_available()
         assert "MOEGS_DISABLE_CPU_KERNEL" in _cpu.load_error()
@@ -237,5 +238,5 @@ def test_loader_reports_why_when_disabled(monkeypatch):
             _cpu.composite(**make_scene(3, 8, 8))
     finally:
         monkeypatch.delenv("MOEGS_DISABLE_CPU_KERNEL")
-        _cpu._reset()
+        kernels.reset()
     assert _cpu.is_available()

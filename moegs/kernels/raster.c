@@ -3,8 +3,8 @@
  * compositing with one transmittance per group (expert).
  *
  * Plain C99 + OpenMP. No torch and no Python headers: the shared library is loaded with ctypes
- * by moegs/render/_cpu/__init__.py, which owns every output buffer (torch tensors) and passes raw
- * pointers. All arrays are C-contiguous; float is IEEE float32.
+ * by moegs/kernels/__init__.py; moegs/render/_cpu.py owns every output buffer (torch tensors) and
+ * passes raw pointers. All arrays are C-contiguous; float is IEEE float32.
  *
  * Contract (identical to moegs/render/_torch.py, the test oracle):
  *   - Gaussians are visited in depth order (a stable argsort computed by the caller: `order`).
@@ -52,8 +52,9 @@
 #define MOEGS_API __attribute__((visibility("default")))
 #endif
 
-/* Bump when any exported signature or saved-state layout changes; the loader checks it. */
-#define MOEGS_ABI_VERSION 1
+/* Bump when any exported signature (this file or hashgrid.c) or saved-state layout changes; the loader
+ * checks it. 2: the hash encoding (hashgrid.c) joined the library. */
+#define MOEGS_ABI_VERSION 2
 
 /* Constants of the contract. The float ones are the float32 values torch compares against
  * (a Python float compared with a float32 tensor is rounded to float32). */
@@ -102,7 +103,7 @@ MOEGS_API int moegs_max_threads(void) {
 /* Stub so the file can also be built as a CPython "extension module" by setuptools (some
  * platforms' linkers want PyInit_<name> exported). It is never meant to be imported: doing so
  * raises SystemError. The real entry points are the moegs_* symbols, used through ctypes. */
-MOEGS_API void *PyInit__raster(void) { return 0; }
+MOEGS_API void *PyInit__cpu(void) { return 0; }
 
 /*
  * Row culling (exact): on a pixel row with offset dy, the pixels that can pass the alpha test

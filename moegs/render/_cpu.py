@@ -1,15 +1,11 @@
-"""Compiled CPU compositing kernel (C + OpenMP, loaded with ctypes), forward and backward.
+"""Compiled CPU compositing (``moegs/kernels/raster.c``, C + OpenMP via ctypes), forward and backward.
 
 ``composite`` has exactly the signature, return values and maths of
 :func:`moegs.render._torch._composite` (see that module's docstring for the contract); it is the
-fast CPU path, ``_torch._composite`` is the oracle it is tested against.
-
-The kernel is ``raster.c`` in this folder, built into ``_raster<EXT_SUFFIX>`` next to this file by
-the package build (``setup.py``) or, for people editing the C file, by
-``python -m moegs.render._cpu build``. It has no torch or Python headers: every buffer is a torch
-tensor allocated here and passed to C as a raw pointer. If the library is missing or stale,
-``is_available()`` is False and ``load_error()`` says why; callers fall back to ``_torch``.
-Set ``MOEGS_DISABLE_CPU_KERNEL=1`` to force that fallback.
+fast CPU path, ``_torch._composite`` is the oracle it is tested against. Every buffer is a torch
+tensor allocated here and passed to C as a raw pointer. If the compiled library is missing or stale,
+``is_available()`` is False and ``load_error()`` says why (:mod:`moegs.kernels`); callers fall back to
+``_torch``.
 
 Results are deterministic and bit-identical for any thread count (per-Gaussian sums go through
 per-(tile, Gaussian) slots reduced in a fixed order). Outputs are float32 whatever the input dtype.
@@ -17,109 +13,20 @@ per-(tile, Gaussian) slots reduced in a fixed order). Outputs are float32 whatev
 
 from __future__ import annotations
 
-import ctypes
-import importlib.machinery
-import os
-from pathlib import Path
-
 import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
+from moegs.kernels import check as _check
+from moegs.kernels import is_available, library, library_path, load_error
+
 __all__ = ["composite", "is_available", "load_error", "library_path", "TILE_SIZE"]
 
-ABI_VERSION = 1  # must match MOEGS_ABI_VERSION in raster.c
 TILE_SIZE = 16  # pixels per tile side; only affects speed, never the result (8 and 16 measured within 5%)
-_HERE = Path(__file__).resolve().parent
-_LIB_NAME = "_raster"
-
-_lib: ctypes.CDLL | None = None
-_error: str | None = None
-_loaded = False
-
-_ERRORS = {-1: "out of memory", -2: "groups out of range [0, num_groups)", -3: "invalid arguments"}
-
-
-def library_path() -> Path | None:
-    """The compiled library next to this file (first match in EXTENSION_SUFFIXES order), or None."""
-    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
-        path = _HERE / f"{_LIB_NAME}{suffix}"
-        if path.is_file():
-            return path
-    return None
-
-
-def _declare(lib: ctypes.CDLL) -> None:
-    p, i32, i64 = ctypes.c_void_p, ctypes.c_int32, ctypes.c_int64
-    lib.moegs_abi_version.restype = ctypes.c_int
-    lib.moegs_abi_version.argtypes = []
-    lib.moegs_prepare.restype = i64
-    lib.moegs_prepare.argtypes = [i64, i64, i32, i32, i32, i32, i32] + [p] * 13
-    lib.moegs_forward.restype = ctypes.c_int
-    lib.moegs_forward.argtypes = [i64, i64, i32, i32, i32, i32, i32] + [p] * 7 + [i64] + [p] * 7
-    lib.moegs_backward.restype = ctypes.c_int
-    lib.moegs_backward.argtypes = [i64, i64, i32, i32, i32, i32, i32] + [p] * 7 + [i64] + [p] * 10
-
-
-def _load() -> ctypes.CDLL | None:
-    global _lib, _error, _loaded
-    if _loaded:
-        return _lib
-    _loaded = True
-    if os.environ.get("MOEGS_DISABLE_CPU_KERNEL", "") not in ("", "0"):
-        _error = "disabled by MOEGS_DISABLE_CPU_KERNEL"
-        return None
-    path = library_path()
-    if path is None:
-        _error = (
-            f"compiled kernel {_LIB_NAME}<{importlib.machinery.EXTENSION_SUFFIXES[0]}> not found in {_HERE}; "
-            "reinstall the package (`pip install -e .`) or run `python -m moegs.render._cpu build`"
-        )
-        return None
-    try:
-        lib = ctypes.CDLL(str(path))
-        _declare(lib)
-        version = lib.moegs_abi_version()
-    except (OSError, AttributeError) as exc:
-        _error = f"cannot load {path}: {exc}"
-        return None
-    if version != ABI_VERSION:
-        _error = (
-            f"{path} has ABI version {version}, expected {ABI_VERSION} (stale build); "
-            "rebuild with `python -m moegs.render._cpu build` or `pip install -e .`"
-        )
-        return None
-    _lib = lib
-    return lib
-
-
-def is_available() -> bool:
-    """True if the compiled kernel is built, loadable and of the expected ABI version."""
-    return _load() is not None
-
-
-def load_error() -> str | None:
-    """Why the kernel is unavailable (None when it is available)."""
-    _load()
-    return _error
-
-
-def _reset() -> None:
-    """Forget the loaded library (used by the dev build command; the old .so stays mapped)."""
-    global _lib, _error, _loaded
-    _lib, _error, _loaded = None, None, False
 
 
 def _ptr(t: Tensor | None) -> int | None:
     return None if t is None or t.numel() == 0 else t.data_ptr()
-
-
-def _check(code: int, what: str) -> None:
-    if code < 0:
-        msg = _ERRORS.get(int(code), f"error {code}")
-        if code == -1:
-            raise MemoryError(f"moegs CPU kernel ({what}): {msg}")
-        raise ValueError(f"moegs CPU kernel ({what}): {msg}")
 
 
 class _Composite(torch.autograd.Function):
@@ -127,7 +34,7 @@ class _Composite(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, means2d, conics, opacities, colors, radii, groups, order, width, height, num_groups):
-        lib = _load()
+        lib = library()
         n, d = colors.shape
         g, tile, threads = num_groups, TILE_SIZE, torch.get_num_threads()
         ntiles = -(-width // tile) * -(-height // tile)
@@ -164,7 +71,7 @@ class _Composite(torch.autograd.Function):
     @staticmethod
     @once_differentiable
     def backward(ctx, grad_image, grad_alpha, _grad_contrib):
-        lib = _load()
+        lib = library()
         order, geo, box, grp, col, gstart, tile_off, lists, pairpos, tfinal, last = ctx.saved_tensors
         n, d, g, width, height, tile, total = ctx.dims
         grad_image = grad_image.to(torch.float32).contiguous()
@@ -213,9 +120,9 @@ def composite(
     Returns:
         image ``[G, H, W, D]``, alpha ``[G, H, W]``, contrib ``[N]`` (no gradient), all float32.
     """
-    lib = _load()
+    lib = library()
     if lib is None:
-        raise RuntimeError(f"moegs CPU kernel unavailable: {_error}")
+        raise RuntimeError(f"moegs CPU kernel unavailable: {load_error()}")
     if colors.dim() != 2 or colors.shape[1] < 1:
         raise ValueError(f"composite: colors must have shape [N, D] with D >= 1, got {tuple(colors.shape)}")
     n = colors.shape[0]
