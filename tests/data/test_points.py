@@ -26,15 +26,21 @@ pycolmap = pytest.importorskip("pycolmap")
 
 @pytest.fixture(scope="module")
 def static_frame():
-    """Frame 0 of the n3v_like scene from the 7 training cameras of the quick rig (128x96)."""
+    """Frame 0 of the n3v_like scene's geometry from the 7 training cameras of the quick rig (128x96), every
+    surface with a feature-rich noise texture (the stand-in's own backdrop is deliberately smooth, and
+    SIFT needs texture to match)."""
+    from dataclasses import replace
+
     from moegs.data.synthetic.generate import torch_threads
     from moegs.data.synthetic.raycast import render
     from moegs.data.synthetic.rigs import forward_facing_rig
     from moegs.data.synthetic.scenes import build_scene
+    from moegs.data.synthetic.textures import Texture
 
     desc = build_scene("n3v_like", 0)
     cams = forward_facing_rig(8, desc.target, 128, 96, 65.0, seed=0)[1:]
-    prims = desc.primitives(0.0)
+    rich = Texture("noise", ((0.8, 0.7, 0.5), (0.3, 0.5, 0.6), (0.2, 0.2, 0.3)), 0.3, 0.12, 0.35, seed=1)
+    prims = [replace(p, texture=rich) for p in desc.primitives(0.0)]
     with torch_threads(1):
         images = [render(prims, c, 0.0, supersample=2).rgb for c in cams]
     return desc, prims, cams, images

@@ -3,7 +3,7 @@
 Each scene mixes the motion regimes the MoE-GS / MoDE thesis is about (different deformation models
 win in different regions and times): a static textured background, a rigid object on a smooth path,
 a fast articulated limb, a non-rigid pulsating blob, an object with abrupt irregular motion (sharp
-turns and a teleport), an object that appears and disappears, and an appearance change.
+turns and spin reversals), an object that appears and disappears, and an appearance change.
 
 API::
 
@@ -34,6 +34,7 @@ from moegs.data.synthetic.groundtruth import (
     gt_files,
     load_ground_truth,
     load_mask,
+    load_regimes,
     render_ground_truth,
 )
 from moegs.data.synthetic.raycast import Primitive, Render, render
@@ -111,7 +112,8 @@ def load_synthetic(
             whole frame window with ``duration = num_frames`` for n3v).
     Returns:
         the loader's ``Scene`` with ``name = "synthetic:<name>"``, ``stand_in`` set, the ground-truth
-        dynamic mask as every view's ``load_mask`` (instead of the D-NeRF loader's object alpha), and
+        dynamic mask as every view's ``load_mask`` (instead of the D-NeRF loader's object alpha), one
+        mask per motion regime as its ``load_regions`` (``load_regimes``), and
         ``scene.meta["synthetic"]`` (folder, seed, preset, objects, ...).
     """
     overrides = dict(overrides or {})
@@ -144,8 +146,9 @@ def _decorate(scene: Scene, folder: Path, name: str, spec: SyntheticSpec) -> Sce
     scene.name = f"synthetic:{name}"
     scene.stand_in = f"{spec.stand_in_for} (synthetic stand-in)"
     for view in [*scene.train, *scene.test]:  # the ground-truth dynamic mask replaces a loader's mask
-        mask_path = gt_files(folder, view.camera.name)[2]
-        view.load_mask = partial(load_mask, mask_path, (view.camera.width, view.camera.height))
+        size = (view.camera.width, view.camera.height)
+        view.load_mask = partial(load_mask, gt_files(folder, view.camera.name)[2], size)
+        view.load_regions = partial(load_regimes, folder, view.camera.name, size)
     info = {
         "dir": str(folder),
         "name": name,
@@ -156,6 +159,7 @@ def _decorate(scene: Scene, folder: Path, name: str, spec: SyntheticSpec) -> Sce
         "dynamic_ids": meta.get("dynamic_ids"),
         "stand_in_for": spec.stand_in_for,
         "mask": "ground-truth dynamic mask (first hit is a non-static object)",
+        "regions": "one mask per motion regime (the category of the object hit first)",
     }
     if isinstance(getattr(scene, "meta", None), dict):
         scene.meta["synthetic"] = info

@@ -168,7 +168,7 @@ def _abrupt_info(desc: SceneDescription) -> dict | None:
             path = o.position
             knots = getattr(path, "knots", None)
             if knots is not None:
-                return {"object": o.name, "knots": list(knots[1:-1]), "jump_time": path.jump_time}
+                return {"object": o.name, "knots": list(knots[1:-1])}
     return None
 
 

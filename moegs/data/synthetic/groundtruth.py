@@ -135,6 +135,20 @@ def ground_truth(scene: Scene, view: View | Camera | str) -> GroundTruth:
     return load_ground_truth(info["dir"], view)
 
 
+def load_regimes(scene_dir: str | Path, name: str, size: tuple[int, int]) -> dict[str, Tensor]:
+    """``{category: [H, W] float32 mask}`` of view ``name`` at ``size = (width, height)``: the pixels whose
+    first hit is an object of each motion regime of the scene (every dynamic category the scene has, also
+    where this view does not show it)."""
+    gt = load_ground_truth(scene_dir, name)
+    ids = torch.from_numpy(_resize_nearest(gt.ids.numpy().astype(np.uint8), size))
+    out: dict[str, Tensor] = {}
+    for o in gt.objects:
+        if o["dynamic"]:
+            mask = (ids == o["id"]).to(torch.float32)
+            out[o["category"]] = out[o["category"]] + mask if o["category"] in out else mask
+    return out
+
+
 def load_mask(path: Path, size: tuple[int, int]) -> Tensor:
     """Mask PNG -> ``[H, W]`` float32 in {0, 1} at ``size = (width, height)`` (nearest resize)."""
     if not path.is_file():

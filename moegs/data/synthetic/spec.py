@@ -7,7 +7,7 @@ import json
 from dataclasses import asdict, dataclass, fields, replace
 
 # Bump when the renderer, the scenes or the writers change what is written for the same spec.
-GENERATOR_VERSION = 2
+GENERATOR_VERSION = 3
 
 LAYOUTS = ("n3v", "dnerf")
 CODECS = ("lossless", "yuv444", "yuv420")
