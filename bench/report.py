@@ -185,6 +185,28 @@ def motion_lines(experts: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def regime_markdown(experts: list[dict[str, Any]]) -> list[str]:
+    """The expert cells' PSNR per motion regime (stand-ins), one row per cell, as markdown lines."""
+    rows = [r for r in experts if r.get("psnr_regimes")]
+    if not rows:
+        return []
+    names = sorted({k for r in rows for k in r["psnr_regimes"]})
+    lines = [
+        "",
+        "PSNR per motion regime (stand-ins; the pixels of the objects of each regime, squared error pooled "
+        "over the test views; `moegs.data.synthetic`'s categories), beside the dynamic region as a whole:",
+        "",
+        "| scene | dataset recipe | expert | PSNR dynamic | " + " | ".join(names) + " |",
+        "|---|---|---|---|" + "---|" * len(names),
+    ]
+    for r in rows:
+        values = " | ".join(_num(r["psnr_regimes"].get(n)) for n in names)
+        lines.append(
+            f"| {r['scene']} | {r['dataset']} | {r['expert']} | {_num(r['psnr']['dynamic'])} | {values} |"
+        )
+    return lines
+
+
 def signals_markdown(signals: dict[str, Any]) -> list[str]:
     """The run's motion, routing and noise evidence (``bench.signals``) as markdown lines."""
     noise = signals.get("noise") or {}
@@ -220,6 +242,7 @@ def signals_markdown(signals: dict[str, Any]) -> list[str]:
                 f"| {r['scene']} | {r['dataset']} | {r['expert']} | {_num(p['full'])} | {_num(p['dynamic'])} "
                 f"| {_num(p['static'])} | {_num(lp['dynamic'], 3)} | {_num(r.get('motion_r2'))} |"
             )
+    lines += regime_markdown(experts)
     routing = signals.get("routing") or []
     if routing:
         lines += [

@@ -1,8 +1,9 @@
 """What the run says about motion, routing and noise, read back from result JSONs (no torch).
 
 * ``expert_rows``: every expert cell's PSNR / SSIM / LPIPS on the full image, the dynamic region and the
-  static region, and how much of the dynamic region's change over time it reproduces (temporal R²; one
-  row per expert, scene and dataset recipe; seed 0, full training budget);
+  static region, its PSNR per motion regime (stand-ins), and how much of the dynamic region's change over
+  time it reproduces (temporal R²; one row per expert, scene and dataset recipe; seed 0, full training
+  budget);
 * ``routing_rows``: every MoE-GS cell's routing signal (``moegs.moe.winner_coherence`` of the winner map,
   and the share of dynamic / static pixels each expert wins);
 * ``seed_noise``: the seed-to-seed spread of the stability runs (the ``seeds``-axis specs): the largest
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from bench.cells._eval import REGIME_PREFIX
 from bench.plan import Plan
 from bench.results import ResultError, read_result
 from bench.spec import METRICS
@@ -43,11 +45,17 @@ def _regions(metrics: dict[str, Any], name: str) -> dict[str, float | None]:
     return {region: metrics.get(f"{name}{suffix}") for region, suffix in REGION_KEYS.items()}
 
 
+def regime_psnrs(metrics: dict[str, Any]) -> dict[str, float]:
+    """``{motion regime: PSNR}`` of a cell's metrics (its ``psnr_regime_*`` keys; empty on real scenes)."""
+    return {k.removeprefix(REGIME_PREFIX): v for k, v in metrics.items() if k.startswith(REGIME_PREFIX)}
+
+
 def expert_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
     """``[{"scene", "dataset", "expert", "preset", "psnr": {"full", "dynamic", "static"}, "ssim": ...,
-    "lpips": ..., "motion_r2"}]`` of the seed-0, full-budget expert cells (``motion_r2``: the temporal R²
-    of the dynamic region, ``moegs.metrics.motion``; None where no test camera is seen at several times
-    with masks)."""
+    "lpips": ..., "psnr_regimes": {category: PSNR}, "motion_r2"}]`` of the seed-0, full-budget expert cells
+    (``psnr_regimes``: a stand-in's motion regimes, empty on real scenes; ``motion_r2``: the temporal R² of
+    the dynamic region, ``moegs.metrics.motion``; None where no test camera is seen at several times with
+    masks)."""
     rows: dict[tuple[str, str, str], dict[str, Any]] = {}
     for _sp, slot, result in _ok_results(plan, workspace, "expert"):
         task = slot.task
@@ -63,6 +71,7 @@ def expert_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
                 "expert": task.params["expert"],
                 "preset": task.preset,
                 **{name: _regions(m, name) for name in ("psnr", "ssim", "lpips")},
+                "psnr_regimes": regime_psnrs(m),
                 "motion_r2": m.get("motion_r2"),
             },
         )

@@ -4,7 +4,8 @@ plus render speed and model size.
 ``render(camera) -> image [H, W, 3]`` is called under ``torch.no_grad``. Scores come from
 ``moegs.train.evaluate.evaluate_renderer`` (this module adds no metric of its own): full image,
 dynamic region and static region (synthetic stand-ins: ground-truth dynamic mask; D-NeRF: object alpha;
-Panoptic: foreground segmentation). Below a real scene's native resolution, with ``native`` given
+Panoptic: foreground segmentation), and on stand-ins each motion regime (``psnr_regime_<category>``, the
+pooled PSNR of the pixels of its objects). Below a real scene's native resolution, with ``native`` given
 (``Context.native_scene``), the renders are also upsampled (bicubic) to the native test images and
 scored there (``psnr_native``: what the paper's resolution would see of this model). Speed follows
 ``moegs.metrics.speed.measure_render`` (render call only, warm-up, median per view).
@@ -16,6 +17,9 @@ from collections.abc import Callable
 from typing import Any
 
 from bench.presets import BenchPreset
+
+REGIME_PREFIX = "psnr_regime_"
+"""Metric key prefix of the PSNR of one named region (a stand-in's motion regime, ``View.regions``)."""
 
 
 def module_megabytes(*modules: Any) -> float:
@@ -71,7 +75,9 @@ def evaluate_cell(
         "lpips_unavailable": scores.pop("lpips_unavailable"),
         "region_masks": scores.pop("region_masks"),
     }
+    regimes = scores.pop("psnr_regions")
     metrics = {k: v for k, v in scores.items() if v is not None or k in ("psnr", "ssim", "lpips")}
+    metrics.update({f"{REGIME_PREFIX}{name}": v for name, v in regimes.items() if v is not None})
     if native is not None:
         metrics["psnr_native"] = psnr_upsampled(render, views, eval_views(native.test, preset.test_views))
         details["native_size"] = [native.test[0].camera.width, native.test[0].camera.height]

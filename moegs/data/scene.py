@@ -58,6 +58,9 @@ class View:
             already composited on the scene background.
         load_mask: optional, returns a mask ``[H, W]`` float32 in [0, 1] (e.g. dynamic region).
         key: unique identifier used by the cache and in per-view results.
+        load_regions: optional, returns named masks ``{name: [H, W]}`` float32 in {0, 1}, the same names for
+            every view of a scene (a stand-in's motion regimes: the pixels of its ``articulated``,
+            ``transient``... objects); evaluations score each region separately.
     """
 
     camera: Camera
@@ -65,6 +68,7 @@ class View:
     key: str
     load_mask: Callable[[], Tensor] | None = None
     cache: ImageCache | None = field(default=None, repr=False)
+    load_regions: Callable[[], dict[str, Tensor]] | None = None
 
     def image(self) -> Tensor:
         """``[H, W, 3]`` float32 in [0, 1]."""
@@ -74,6 +78,10 @@ class View:
 
     def mask(self) -> Tensor | None:
         return None if self.load_mask is None else self.load_mask()
+
+    def regions(self) -> dict[str, Tensor]:
+        """Named region masks (empty without ``load_regions``)."""
+        return {} if self.load_regions is None else self.load_regions()
 
 
 @dataclass

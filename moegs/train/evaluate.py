@@ -6,10 +6,14 @@ dynamic mask, D-NeRF's object alpha, Panoptic's foreground segmentation), on its
 region-weighted means of their spatial maps. Keys: ``psnr``, ``ssim``, ``lpips`` and
 ``<metric>_dynamic`` / ``<metric>_static``; ``motion_r2``, over the test cameras seen at several times,
 says how much of the dynamic region's change over time the renders reproduce (``moegs.metrics.motion``).
+Views with named regions (``View.regions()``: a stand-in's motion regimes) also get ``psnr_regions``, the
+PSNR of each region over the squared error pooled across every pixel of it in every view (a region that
+some views do not show, such as a transient object, still gets one value).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -78,6 +82,33 @@ def mean_scores(rows: Sequence[dict[str, Any]]) -> dict[str, float | None]:
     return out
 
 
+class RegionErrors:
+    """Squared error and pixel count per named region, pooled over views; ``psnr()`` per region (peak 1)."""
+
+    def __init__(self) -> None:
+        self.sums: dict[str, float] = {}
+        self.counts: dict[str, float] = {}
+
+    def add(self, image: Tensor, target: Tensor, regions: dict[str, Tensor]) -> None:
+        """One render ``[H, W, C]``, its target and the view's region masks ``{name: [H, W]}``."""
+        if not regions:
+            return
+        error = (image - target).square().sum(-1).double()  # [H, W], summed over channels (raw, as psnr)
+        for name, mask in regions.items():
+            if mask.shape != error.shape:
+                raise ValueError(f"region {name!r}: mask {list(mask.shape)} != image {list(error.shape)}")
+            self.sums[name] = self.sums.get(name, 0.0) + float((error * mask).sum())
+            self.counts[name] = self.counts.get(name, 0.0) + float(mask.sum()) * image.shape[-1]
+
+    def psnr(self) -> dict[str, float | None]:
+        """``{name: PSNR}`` of the pooled mean squared error (None for a region no view shows)."""
+        out: dict[str, float | None] = {}
+        for name in sorted(self.sums):
+            n = self.counts[name]
+            out[name] = -10.0 * math.log10(max(self.sums[name] / n, 1e-12)) if n > 0 else None
+        return out
+
+
 @torch.no_grad()
 def evaluate_renderer(
     render: Callable[[Camera], Tensor], views: Sequence[View], profile: str = "moegs", regions: bool = True
@@ -85,24 +116,28 @@ def evaluate_renderer(
     """Mean ``KEYS`` of ``render(camera) -> [H, W, 3]`` over ``views`` and the per-view values.
 
     Returns:
-        ``{**KEYS, "motion_r2", "lpips_unavailable", "profile", "num_views", "region_masks", "per_view":
-        [{"key", "time", **KEYS}]}``; ``motion_r2`` is the temporal R² of the dynamic region
+        ``{**KEYS, "motion_r2", "psnr_regions", "lpips_unavailable", "profile", "num_views", "region_masks",
+        "per_view": [{"key", "time", **KEYS}]}``; ``motion_r2`` is the temporal R² of the dynamic region
         (``moegs.metrics.motion``; None without a camera seen at several times with masks);
+        ``psnr_regions`` the pooled PSNR of each named region (empty without ``View.regions``);
         ``region_masks`` says whether any view had a mask.
     """
     if not views:
         raise ValueError("evaluate_renderer needs at least one view")
-    per_view, unavailable, prof, motion = [], None, None, MotionCapture()
+    per_view, unavailable, prof, motion, pooled = [], None, None, MotionCapture(), RegionErrors()
     for view in views:
         image, target, mask = render(view.camera), view.image(), view.mask() if regions else None
         scores = score_image(image, target, mask, profile)
         if mask is not None:
             motion.add(view.camera, image, target, mask)
+        if regions:
+            pooled.add(image, target, view.regions())
         unavailable, prof = scores.pop("lpips_unavailable"), scores.pop("profile")
         per_view.append({"key": view.key, "time": float(view.camera.time), **scores})
     return {
         **mean_scores(per_view),
         "motion_r2": motion.value(),
+        "psnr_regions": pooled.psnr(),
         "lpips_unavailable": unavailable,
         "profile": prof,
         "num_views": len(views),

@@ -154,6 +154,7 @@ def test_plots_and_report(run):
             assert set(row[metric]) == {"full", "dynamic", "static"}
         assert all(5.0 < row["psnr"][r] < 60.0 for r in ("full", "dynamic", "static"))
         assert row["motion_r2"] is None  # D-NeRF's test views never repeat a camera: no temporal R²
+        assert row["psnr_regimes"] == {}  # motion regimes are a stand-in's ground truth
     if spec.id == "tab17":  # MoE-GS N=2: the routing signal of its gate maps
         (routing,) = summary["routing"]
         assert routing["table"] == "tab17" and routing["experts"] == ["deformable", "grid4d"]

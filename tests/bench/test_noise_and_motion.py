@@ -104,3 +104,17 @@ def test_report_states_how_much_motion_the_experts_reproduce():
     (line,) = motion_lines(rows)
     assert "synthetic:n3v_like" in line and "0.08 (fourdgs) to 0.36 (stg)" in line
     assert motion_lines([rows[2]]) == []
+
+
+def test_report_scores_each_motion_regime_of_the_stand_ins():
+    from bench.cells._eval import REGIME_PREFIX
+    from bench.report import regime_markdown
+    from bench.signals import regime_psnrs
+
+    metrics = {"psnr": 25.0, f"{REGIME_PREFIX}articulated": 21.5, f"{REGIME_PREFIX}transient": 14.25}
+    assert regime_psnrs(metrics) == {"articulated": 21.5, "transient": 14.25}
+    row = {"scene": "synthetic:n3v_like", "dataset": "n3v", "expert": "stg", "psnr": {"dynamic": 19.0}}
+    lines = regime_markdown([{**row, "psnr_regimes": regime_psnrs(metrics)}])
+    assert "| scene | dataset recipe | expert | PSNR dynamic | articulated | transient |" in lines
+    assert "| synthetic:n3v_like | n3v | stg | 19.00 | 21.50 | 14.25 |" in lines
+    assert regime_markdown([{**row, "psnr_regimes": {}}]) == []  # real scenes: no regimes, no table

@@ -1,0 +1,59 @@
+"""Scores per named region (a stand-in's motion regimes): pooled squared error over the views that show it."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from moegs.camera import Camera, intrinsics
+from moegs.data.scene import View
+from moegs.train.evaluate import RegionErrors, evaluate_renderer
+
+
+def _view(key: str, target: torch.Tensor, regions: dict[str, torch.Tensor], time: float) -> View:
+    h, w = target.shape[:2]
+    camera = Camera(
+        K=intrinsics(10.0, 10.0, w / 2, h / 2), world_to_camera=torch.eye(4), width=w, height=h, time=time
+    )
+    return View(camera, lambda: target, key, load_regions=lambda: regions)
+
+
+def test_region_psnr_pools_the_squared_error_of_every_view():
+    errors = RegionErrors()
+    target = torch.zeros(4, 4, 3)
+    a = torch.zeros(4, 4)
+    a[:2] = 1.0  # 8 pixels
+    b = torch.zeros(4, 4)
+    b[3, 3] = 1.0  # 1 pixel
+    errors.add(torch.full((4, 4, 3), 0.1), target, {"a": a, "b": torch.zeros(4, 4)})
+    errors.add(torch.full((4, 4, 3), 0.3), target, {"a": a, "b": b})
+    psnr = errors.psnr()
+    pooled_a = (8 * 3 * 0.01 + 8 * 3 * 0.09) / (16 * 3)  # both views, 8 pixels x 3 channels each
+    assert psnr["a"] == pytest.approx(-10 * math.log10(pooled_a))
+    assert psnr["b"] == pytest.approx(-10 * math.log10(0.09))  # only the second view shows b
+    errors.add(torch.zeros(4, 4, 3), target, {"c": torch.zeros(4, 4)})
+    assert errors.psnr()["c"] is None  # a region no view shows has no value
+
+
+def test_region_mask_of_the_wrong_shape_is_named():
+    with pytest.raises(ValueError, match="region 'arm': mask \\[3, 3\\] != image \\[4, 4\\]"):
+        RegionErrors().add(torch.zeros(4, 4, 3), torch.zeros(4, 4, 3), {"arm": torch.ones(3, 3)})
+
+
+def test_evaluation_reports_the_regions_of_its_views():
+    target = torch.rand(32, 40, 3, generator=torch.Generator().manual_seed(0))
+    left = torch.zeros(32, 40)
+    left[:, :20] = 1.0
+    views = [_view(f"v{i}", target, {"left": left, "right": 1.0 - left}, i / 2) for i in range(2)]
+
+    def render(camera):  # exact on the left half, off by 0.1 on the right half
+        out = target.clone()
+        out[:, 20:] += 0.1
+        return out
+
+    scores = evaluate_renderer(render, views)
+    assert scores["psnr_regions"]["left"] == pytest.approx(120.0)  # error 0: the 1e-12 floor
+    assert scores["psnr_regions"]["right"] == pytest.approx(20.0, abs=1e-4)
+    assert evaluate_renderer(render, views, regions=False)["psnr_regions"] == {}
