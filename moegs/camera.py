@@ -124,6 +124,12 @@ class Camera:
     def at_time(self, time: float) -> Camera:
         return replace(self, time=float(time))
 
+    def pose_key(self) -> bytes:
+        """The camera apart from its time: intrinsics, pose and image size, as hashable bytes."""
+        k = self.K.detach().to("cpu", torch.float64).numpy().tobytes()
+        w2c = self.world_to_camera.detach().to("cpu", torch.float64).numpy().tobytes()
+        return k + w2c + f"{self.width}x{self.height}".encode()
+
 
 def look_at(eye: Tensor, target: Tensor, up: Tensor | None = None) -> Tensor:
     """World-to-camera ``[4, 4]`` (OpenCV) for a camera at ``eye`` looking at ``target``.

@@ -7,8 +7,9 @@ Loaders (``dnerf``, ``panoptic``, ``n3v``, ``technicolor``, ``hypernerf``, ``syn
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -16,23 +17,35 @@ from torch import Tensor
 from moegs.camera import Camera
 
 
+def tensor_bytes(value: Tensor) -> int:
+    """Memory held by one tensor's elements."""
+    return value.numel() * value.element_size()
+
+
 class ImageCache:
     """LRU cache of decoded images, shared by all views of a scene, bounded by ``max_bytes`` (default
     1 GiB: every training view of the quick and standard presets stays resident) and optionally by
-    ``max_items``; 0 for either keeps nothing."""
+    ``max_items``; 0 for either keeps nothing. ``nbytes`` sizes a value (other values than one tensor:
+    e.g. a frozen expert's rasterizer inputs, ``moegs.moe.train``)."""
 
-    def __init__(self, max_items: int | None = None, max_bytes: int = 1 << 30) -> None:
+    def __init__(
+        self,
+        max_items: int | None = None,
+        max_bytes: int = 1 << 30,
+        nbytes: Callable[[Any], int] = tensor_bytes,
+    ) -> None:
         self.max_items = max_items
         self.max_bytes = max_bytes
+        self.nbytes = nbytes
         self.bytes = 0
-        self._items: OrderedDict[str, Tensor] = OrderedDict()
+        self._items: OrderedDict[Hashable, Any] = OrderedDict()
 
-    def get(self, key: str, load: Callable[[], Tensor]) -> Tensor:
+    def get(self, key: Hashable, load: Callable[[], Any]) -> Any:
         if key in self._items:
             self._items.move_to_end(key)
             return self._items[key]
         value = load()
-        size = value.numel() * value.element_size()
+        size = self.nbytes(value)
         if self.max_items == 0 or size > self.max_bytes:
             return value
         self._items[key] = value
@@ -40,7 +53,7 @@ class ImageCache:
         too_many = self.max_items is not None and len(self._items) > self.max_items
         while self.bytes > self.max_bytes or too_many:
             _, old = self._items.popitem(last=False)
-            self.bytes -= old.numel() * old.element_size()
+            self.bytes -= self.nbytes(old)
             too_many = self.max_items is not None and len(self._items) > self.max_items
         return value
 

@@ -15,7 +15,7 @@ and answers ``frame(t, camera)`` with the activated ``GaussianFrame`` at normali
 from __future__ import annotations
 
 import abc
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Self
 
@@ -181,6 +181,13 @@ def render_splat_inputs(
     return inputs.decoded(out.image), out, inputs.frame
 
 
+def splat_inputs_bytes(inputs: SplatInputs) -> int:
+    """Memory held by the tensors of ``inputs`` (its frame and background)."""
+    f = inputs.frame
+    tensors = [f.means, f.quats, f.scales, f.opacities, f.colors, f.sh, inputs.background]
+    return sum(t.numel() * t.element_size() for t in tensors if t is not None)
+
+
 def check_keep(keep: Tensor, num_gaussians: int) -> None:
     """``keep`` must be a bool mask over ``num_gaussians`` rows."""
     if keep.dtype != torch.bool or keep.shape != (num_gaussians,):
@@ -234,6 +241,13 @@ class Expert(nn.Module, metaclass=abc.ABCMeta):
         the frame's channels, the rasterizer mode and the decoder. MoE-GS splats routing weights with
         exactly this geometry and renders several experts in one pass from it."""
         return SplatInputs(self.frame(camera.time, camera), background)
+
+    def splat_inputs_key(self, camera: Camera) -> Hashable:
+        """Equal keys promise equal ``splat_inputs`` in eval mode (for one background), so a frozen expert's
+        inputs can be computed once per key (MoE-GS router training). Default: the camera (intrinsics,
+        pose, size) and its time; experts whose inputs depend on the camera only through its time return
+        the time."""
+        return (camera.pose_key(), camera.time)
 
     def render(
         self, camera: Camera, background: Tensor | None, backend: str = "auto", return_stats: bool = False

@@ -609,6 +609,11 @@ class ED3DGSExpert(Expert):
         late = ramp(step, c.deform_from, c.anneal_steps)
         return {"means": a, "quats": a, "scales": a * late, "opacities": a * late, "sh": late}
 
+    def splat_inputs_key(self, camera: Camera) -> float:
+        """In eval mode every camera gets the mean time offset: the inputs depend on the camera only
+        through its time."""
+        return camera.time
+
     def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
         return self.deform(self.splats, t, camera)
 

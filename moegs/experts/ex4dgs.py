@@ -569,6 +569,11 @@ class Ex4DGSExpert(Expert):
     def splat_inputs(self, camera: Camera, background: Tensor | None) -> SplatInputs:
         return SplatInputs(self.frame(camera.time, camera), background, antialiased=True)
 
+    def splat_inputs_key(self, camera: Camera) -> float:
+        """Keyframe interpolation of ``t`` and SH colours: the inputs depend on the camera only through its
+        time (the near plane applies in ``render``)."""
+        return camera.time
+
     def render(
         self, camera: Camera, background: Tensor | None, backend: str = "auto", return_stats: bool = False
     ) -> tuple[Tensor, RenderOutput, GaussianFrame]:

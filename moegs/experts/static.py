@@ -143,6 +143,11 @@ class StaticExpert(Expert):
     def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
         return activate(self.splats, self.active_sh_degree)
 
+    def splat_inputs_key(self, camera: Camera) -> float:
+        """3DGS and the canonical-space deformation experts (SH colours, fields of ``t`` only): the
+        inputs depend on the camera only through its time."""
+        return camera.time
+
     def param_groups(self) -> list[ParamGroup]:
         c, s = self.config, self.spatial_lr_scale
         means = (c.means_lr * s, c.means_lr_final * s, c.means_lr_max_steps)

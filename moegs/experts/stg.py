@@ -28,7 +28,7 @@ oursfull.py``, ``renderer/__init__.py``, ``train.py``, ``helper_train.py``, ``co
 from __future__ import annotations
 
 import bisect
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any, ClassVar
@@ -526,6 +526,10 @@ class STGExpert(Expert):
             background = self.fields.background(background)
         return SplatInputs(frame, background, self.config.antialiased, partial(self.decode, camera=camera))
 
+    def splat_inputs_key(self, camera: Camera) -> Hashable:
+        """The time, except for the full model, whose feature decoder reads the camera."""
+        return super().splat_inputs_key(camera) if self.config.color == "full" else camera.time
+
     # -- training ---------------------------------------------------------------------------------------
     def select_views(
         self, step: int, views: list[View], batch_size: int, generator: torch.Generator
@@ -639,9 +643,13 @@ class STGSegments(nn.Module):
         self.models = nn.ModuleList(models)
         self.bounds = list(bounds)
 
+    def segment(self, t: float) -> int:
+        """Index of the segment holding global time ``t``."""
+        return segment_index(t, [b[0] for b in self.bounds])
+
     def locate(self, t: float) -> tuple[STGExpert, float]:
         """The segment model holding global time ``t`` and the local time there."""
-        k = segment_index(t, [b[0] for b in self.bounds])
+        k = self.segment(t)
         start, stop = self.bounds[k]
         return self.models[k], (t - start) / (stop - start)
 
@@ -658,13 +666,18 @@ class STGSegments(nn.Module):
         model, local = self.locate(camera.time)
         return model.splat_inputs(camera.at_time(local), background)
 
+    def splat_inputs_key(self, camera: Camera) -> Hashable:
+        """The segment and its model's key at the local time."""
+        model, local = self.locate(camera.time)
+        return self.segment(camera.time), model.splat_inputs_key(camera.at_time(local))
+
     def render(
         self, camera: Camera, background: Tensor | None, backend: str = "auto", return_stats: bool = False
     ) -> tuple[Tensor, RenderOutput, GaussianFrame]:
         return render_splat_inputs(self.splat_inputs(camera, background), camera, backend, return_stats)
 
     def frame_rows(self, t: float) -> Tensor:
-        k = segment_index(t, [b[0] for b in self.bounds])
+        k = self.segment(t)
         start = sum(m.num_gaussians for m in self.models[:k])
         return torch.arange(
             start, start + self.models[k].num_gaussians, device=self.models[k].splats["means"].device

@@ -45,12 +45,6 @@ class MotionCapture:
     def __init__(self) -> None:
         self._cameras: dict[bytes, _Sums] = {}
 
-    @staticmethod
-    def _key(camera) -> bytes:
-        k = camera.K.detach().to("cpu", torch.float64).numpy().tobytes()
-        w2c = camera.world_to_camera.detach().to("cpu", torch.float64).numpy().tobytes()
-        return k + w2c + f"{camera.width}x{camera.height}".encode()
-
     @torch.no_grad()
     def add(self, camera, image: Tensor, target: Tensor, mask: Tensor) -> None:
         """One view: ``image`` and ``target`` ``[H, W, 3]`` in [0, 1] (the render is clamped), ``mask``
@@ -62,7 +56,7 @@ class MotionCapture:
             )
         g = target.detach().to("cpu", torch.float64)
         d = image.detach().to("cpu", torch.float64).clamp(0.0, 1.0) - g
-        key = self._key(camera)
+        key = camera.pose_key()
         sums = self._cameras.get(key)
         if sums is None:
             plane = torch.zeros(g.shape[:2], dtype=torch.float64)

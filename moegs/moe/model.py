@@ -14,8 +14,8 @@ import torch
 from torch import Tensor, nn
 
 from moegs.camera import Camera
-from moegs.data.scene import Scene
-from moegs.experts.base import Expert
+from moegs.data.scene import ImageCache, Scene
+from moegs.experts.base import Expert, SplatInputs
 from moegs.io import from_dict, load_checkpoint, to_dict
 from moegs.moe.config import RouterConfig
 from moegs.moe.routers import MoERender, build_router
@@ -65,15 +65,29 @@ class MoEGS(nn.Module):
         background: Tensor | None,
         single_pass: bool | None = None,
         backend: str | None = None,
+        inputs: Sequence[SplatInputs] | None = None,
     ) -> MoERender:
-        """The routed view at ``camera.time`` (``single_pass``/``backend`` default to the config's)."""
+        """The routed view at ``camera.time`` (``single_pass``/``backend`` default to the config's;
+        ``inputs``: the experts' ``splat_inputs`` for ``camera``, when the caller keeps them)."""
         return self.router(
             list(self.experts),
             camera,
             background,
             single_pass=self.config.single_pass if single_pass is None else single_pass,
             backend=backend or self.config.backend,
+            inputs=inputs,
         )
+
+    def expert_inputs(
+        self, camera: Camera, background: Tensor | None, cache: ImageCache
+    ) -> list[SplatInputs]:
+        """Every frozen expert's ``splat_inputs`` for ``camera``, each computed once per its
+        ``splat_inputs_key`` while ``cache`` holds it (the experts never change, so neither do they)."""
+        with torch.no_grad():
+            return [
+                cache.get((k, e.splat_inputs_key(camera)), lambda e=e: e.splat_inputs(camera, background))
+                for k, e in enumerate(self.experts)
+            ]
 
     def checkpoint_state(self) -> dict[str, Any]:
         """What ``load_moe`` needs besides the experts."""

@@ -7,7 +7,8 @@
 * ``VolumeRouter`` (ablation): a per-Gaussian gate ``sigmoid(w + t * w_time)`` multiplies opacity before
   rasterization and every expert's Gaussians are rendered together in one image.
 
-Every router returns a ``MoERender`` with convex per-pixel gates ``[K, H, W]``.
+Every router returns a ``MoERender`` with convex per-pixel gates ``[K, H, W]``; ``inputs`` (each expert's
+``splat_inputs`` for the camera) may be passed in when the caller keeps them (frozen experts).
 """
 
 from __future__ import annotations
@@ -124,8 +125,10 @@ class VolumeAwarePixelRouter(nn.Module):
         rays = ray_features(camera).to(aux.dtype).expand(aux.shape[0], -1, -1, -1)
         return w2d + self.phi(torch.cat([aux, rays], dim=1))[:, 0]
 
-    def forward(self, experts, camera, background, *, single_pass=True, backend="auto") -> MoERender:
-        inputs = expert_inputs(experts, camera, background)
+    def forward(
+        self, experts, camera, background, *, single_pass=True, backend="auto", inputs=None
+    ) -> MoERender:
+        inputs = expert_inputs(experts, camera, background) if inputs is None else inputs
         extras = [self.features(k, e, camera.time) for k, e in enumerate(experts)]
         splat = splat_experts(inputs, camera, extras=extras, single_pass=single_pass, backend=backend)
         logits = self.logits(splat.extras, splat.alphas, camera)
@@ -150,8 +153,10 @@ class PixelRouter(nn.Module):
     def param_groups(self) -> dict[str, list[Tensor]]:
         return {"phi": list(self.phi.parameters())}
 
-    def forward(self, experts, camera, background, *, single_pass=True, backend="auto") -> MoERender:
-        inputs = expert_inputs(experts, camera, background)
+    def forward(
+        self, experts, camera, background, *, single_pass=True, backend="auto", inputs=None
+    ) -> MoERender:
+        inputs = expert_inputs(experts, camera, background) if inputs is None else inputs
         with torch.no_grad():
             splat = splat_experts(inputs, camera, single_pass=single_pass, backend=backend)
         images = splat.images
@@ -185,8 +190,10 @@ class VolumeRouter(nn.Module):
         mix, time = self.weights.rows(k, expert, t)
         return torch.sigmoid(mix[:, 0] + t * time[:, 0])
 
-    def forward(self, experts, camera, background, *, single_pass=True, backend="auto") -> MoERender:
-        inputs = expert_inputs(experts, camera, background)
+    def forward(
+        self, experts, camera, background, *, single_pass=True, backend="auto", inputs=None
+    ) -> MoERender:
+        inputs = expert_inputs(experts, camera, background) if inputs is None else inputs
         if any(inp.decode is not None for inp in inputs):
             raise ValueError(
                 "the volume router renders all experts' Gaussians in one image, so every expert must splat "

@@ -53,6 +53,33 @@ def check_gradients(expert, scene) -> None:
             assert bool(value.grad.isfinite().all()), f"non-finite gradient of {key}"
 
 
+def check_inputs_key(expert, scene) -> None:
+    """In eval mode, views whose ``splat_inputs_key`` are equal get equal ``splat_inputs`` (the promise that
+    lets router training compute a frozen expert's inputs once per key), and keys are hashable."""
+    expert.eval()
+    seen: dict = {}
+    features = None
+    with torch.no_grad():
+        for view in [*scene.train, *scene.test]:
+            key = expert.splat_inputs_key(view.camera)
+            hash(key)
+            inputs = expert.splat_inputs(view.camera, scene.background)
+            if features is None:
+                channels = inputs.frame.colors if inputs.frame.colors is not None else inputs.frame.sh[:, 0]
+                features = torch.rand(view.camera.height, view.camera.width, channels.shape[-1])
+            decoded = inputs.decoded(features)
+            if key not in seen:
+                seen[key] = (inputs, decoded)
+                continue
+            first, first_decoded = seen[key]
+            for field in ("means", "quats", "scales", "opacities", "colors", "sh"):
+                a, b = getattr(first.frame, field), getattr(inputs.frame, field)
+                assert (a is None and b is None) or torch.equal(a, b), (
+                    f"{view.key}: {field} differs, same key"
+                )
+            assert first.antialiased == inputs.antialiased and torch.equal(first_decoded, decoded), view.key
+
+
 def check_checkpoint(expert, scene, folder: Path) -> None:
     """``save_checkpoint`` then ``load_expert`` (which replays the stage of the saved step) gives the same
     frames."""
@@ -71,4 +98,5 @@ def check_protocol(name: str, folder: Path) -> None:
     assert expert.name == name
     check_frames(expert)
     check_gradients(expert, scene)
+    check_inputs_key(expert, scene)
     check_checkpoint(expert, scene, folder)

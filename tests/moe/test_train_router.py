@@ -94,3 +94,30 @@ def test_mismatched_experts_and_missing_checkpoint_are_named(scene, experts, tmp
         load_moe(tmp_path / "nowhere", experts)
     with pytest.raises(ValueError, match="another router config"):
         train_router(experts, scene, cfg(iterations=3, lr_phi=0.1), tmp_path)
+
+
+def test_kept_expert_inputs_change_nothing(scene, experts, tmp_path):
+    """Router training keeps each frozen expert's rasterizer inputs per key instead of recomputing them:
+    the same router, loss history and test scores as recomputing every step (bit for bit)."""
+    kept = train_router(experts, scene, cfg(iterations=12), tmp_path / "kept")
+    fresh = train_router(experts, scene, cfg(iterations=12), tmp_path / "fresh", inputs_cache_bytes=0)
+    a = load_moe(tmp_path / "kept", experts).router.state_dict()
+    b = load_moe(tmp_path / "fresh", experts).router.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert kept["final_loss"] == fresh["final_loss"] and kept["test"]["psnr"] == fresh["test"]["psnr"]
+
+
+def test_expert_inputs_are_computed_once_per_key(scene, experts):
+    from moegs.data.scene import ImageCache
+    from moegs.experts.base import splat_inputs_bytes
+
+    model, calls = MoEGS(experts, cfg()), []
+    original = experts[0].splat_inputs
+    experts[0].splat_inputs = lambda camera, bg: calls.append(camera.time) or original(camera, bg)
+    try:
+        cache = ImageCache(max_bytes=1 << 30, nbytes=splat_inputs_bytes)
+        for view in scene.train * 2:
+            model.expert_inputs(view.camera, scene.background, cache)
+    finally:
+        del experts[0].splat_inputs
+    assert sorted(calls) == sorted({v.camera.time for v in scene.train})  # static 3DGS: one per time
