@@ -16,13 +16,15 @@ from typing import Any
 
 QUICK_ITERATIONS = 600  # moegs.experts.static.QUICK_ITERATIONS (checked by tests)
 ADC_WINDOW = ("strategy.densify_from", "strategy.densify_until", "strategy.reset_every")
+SH_BANDS = "train.sh_degree_interval"  # the steps at which SH bands 1, 2, 3 switch on
 SCHEDULE_FIELDS: dict[str, tuple[str, ...]] = {
-    "static": ("means_lr_max_steps", *ADC_WINDOW),
+    "static": (SH_BANDS, "means_lr_max_steps", *ADC_WINDOW),
     # warm_up: static phase; time_noise_steps: AST annealing; deform_lr_max_steps is the paper's (>= N)
-    "deformable": ("warm_up", "time_noise_steps", "means_lr_max_steps", *ADC_WINDOW),
-    "grid4d": ("warm_up", "means_lr_max_steps", *ADC_WINDOW),
+    "deformable": (SH_BANDS, "warm_up", "time_noise_steps", "means_lr_max_steps", *ADC_WINDOW),
+    "grid4d": (SH_BANDS, "warm_up", "means_lr_max_steps", *ADC_WINDOW),
     # coarse (static) stage, its copy in the strategy, the densify/prune window and the reset period
     "fourdgs": (
+        SH_BANDS,
         "coarse_iterations",
         "means_lr_max_steps",
         "strategy.coarse_iterations",
@@ -31,6 +33,7 @@ SCHEDULE_FIELDS: dict[str, tuple[str, ...]] = {
     ),
     # coarse-to-fine and random-view phases, the deformation's start and ramp, both lr decays, the window
     "ed3dgs": (
+        SH_BANDS,
         "coarse_to_fine_until",
         "anneal_steps",
         "deform_from",
@@ -42,6 +45,7 @@ SCHEDULE_FIELDS: dict[str, tuple[str, ...]] = {
     ),
     # the window, the resets, the omega-mask phase, the bbox prune and the start of guided sampling
     "stg": (
+        SH_BANDS,
         "means_lr_max_steps",
         "strategy.densify_from",
         "strategy.densify_until",
@@ -54,6 +58,7 @@ SCHEDULE_FIELDS: dict[str, tuple[str, ...]] = {
     ),
     # the starts of frame growth, regularisation and pruning, the adjustment phase and the window
     "ex4dgs": (
+        SH_BANDS,
         "grow_from",
         "reg_from",
         "means_lr_max_steps",
@@ -62,7 +67,7 @@ SCHEDULE_FIELDS: dict[str, tuple[str, ...]] = {
         "strategy.densify_until",
         "strategy.prune_from",
     ),
-    "mcmc": ("means_lr_max_steps", "strategy.refine_from", "strategy.refine_until"),
+    "mcmc": (SH_BANDS, "means_lr_max_steps", "strategy.refine_from", "strategy.refine_until"),
 }
 """Quick-reduction fields scaled with the run length, per expert (the keys of ``quick_fields``)."""
 INTERVAL_FIELDS = (

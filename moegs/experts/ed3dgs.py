@@ -41,6 +41,7 @@ from moegs.experts.static import (
     QUICK_ITERATIONS,
     QUICK_POINTS,
     QUICK_RESOLUTION,
+    quick_sh_interval,
     quick_step,
     scene_points,
     thin_points,
@@ -446,6 +447,7 @@ class ED3DGSConfig(ExpertConfig):
             "strategy.densify_until": int(QUICK_ITERATIONS * 0.75),  # the last densified Gaussians train
             "strategy.densify_every": 100,  # the original interval (see static.QUICK_DENSIFY)
             "train.iterations": QUICK_ITERATIONS,
+            "train.sh_degree_interval": quick_sh_interval(paper),
             "train.batch_size": 1,  # N3V / HyperNeRF batch 2 (4) -> 1 (CPU cost; one view per step)
             "train.resolution_scale": QUICK_RESOLUTION,
         }
@@ -639,7 +641,8 @@ class ED3DGSExpert(Expert):
         sh = raw.pop("sh")
         raw.update(sh0=sh[:, :1], shN=sh[:, 1:])
         overrides = {"quats": raw["quats"]} if raw_quats else {}
-        return activate(raw, active_sh_degree(int(self.step), self.config.sh_degree), **overrides)
+        degree = active_sh_degree(int(self.step), self.config.sh_degree, self.config.train.sh_degree_interval)
+        return activate(raw, degree, **overrides)
 
     def regularization(self, step: int, frame: GaussianFrame | None = None) -> Tensor:
         c, s = self.config, self.splats

@@ -42,7 +42,14 @@ from moegs.experts.base import (
     splat_param_groups,
 )
 from moegs.experts.gaussian_params import active_sh_degree, init_splats, sh_coeffs
-from moegs.experts.static import QUICK_ITERATIONS, QUICK_POINTS, QUICK_RESOLUTION, scene_points, thin_points
+from moegs.experts.static import (
+    QUICK_ITERATIONS,
+    QUICK_POINTS,
+    QUICK_RESOLUTION,
+    quick_sh_interval,
+    scene_points,
+    thin_points,
+)
 from moegs.gaussians import GaussianFrame
 from moegs.metrics.ssim import ssim_map
 from moegs.render import RenderOutput, rasterize
@@ -324,6 +331,7 @@ class Ex4DGSConfig(ExpertConfig):
             # no small-radius pruning: 5 px at N3V's 1352x1014 is below one pixel at the quick resolution
             "strategy.small_radius": 0.0,
             "train.iterations": QUICK_ITERATIONS,
+            "train.sh_degree_interval": quick_sh_interval(paper),
             "train.resolution_scale": QUICK_RESOLUTION,
         }
 
@@ -599,7 +607,9 @@ class Ex4DGSExpert(Expert):
 
     # -- training hooks -----------------------------------------------------------------------------------
     def on_step(self, step: int) -> bool:
-        self.active_sh_degree = active_sh_degree(step, self.config.sh_degree)
+        self.active_sh_degree = active_sh_degree(
+            step, self.config.sh_degree, self.config.train.sh_degree_interval
+        )
         c = self.config
         if c.adjust_every and step % c.adjust_every == 0 and step < c.adjust_until:
             self._adjust_temporal_opacity()

@@ -32,7 +32,6 @@ from moegs.gaussians import GaussianFrame
 from moegs.render.projection import rgb_to_sh0
 
 SPLAT_KEYS = ("means", "scales", "quats", "opacities", "sh0", "shN")
-SH_DEGREE_INTERVAL = 1000  # 3DGS `oneupSHdegree` every 1000 iterations (train.py)
 
 
 def num_sh_bases(degree: int) -> int:
@@ -115,6 +114,7 @@ def activate(splats: Mapping[str, Tensor], active_sh_degree: int, **overrides: T
     )
 
 
-def active_sh_degree(step: int, max_degree: int = 3, interval: int = SH_DEGREE_INTERVAL) -> int:
-    """SH degree used at 1-based iteration ``step``: +1 every ``interval`` iterations (3DGS)."""
+def active_sh_degree(step: int, max_degree: int, interval: int) -> int:
+    """SH degree used at 1-based iteration ``step``: +1 every ``interval`` iterations (3DGS: 1000,
+    ``TrainConfig.sh_degree_interval``), at most ``max_degree``."""
     return min(max_degree, step // interval)

@@ -29,6 +29,7 @@ from moegs.experts.static import (
     QUICK_RESOLUTION,
     StaticConfig,
     StaticExpert,
+    quick_sh_interval,
     scene_points,
     thin_points,
 )
@@ -66,6 +67,7 @@ class MCMCConfig(StaticConfig):
             "strategy.refine_until": 500,
             "strategy.refine_every": 25,
             "train.iterations": QUICK_ITERATIONS,
+            "train.sh_degree_interval": quick_sh_interval(paper),
             "train.resolution_scale": QUICK_RESOLUTION,
         }
 

@@ -50,7 +50,14 @@ from moegs.experts.base import (
     splat_param_groups,
 )
 from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats
-from moegs.experts.static import QUICK_ITERATIONS, QUICK_POINTS, QUICK_RESOLUTION, scene_points, thin_points
+from moegs.experts.static import (
+    QUICK_ITERATIONS,
+    QUICK_POINTS,
+    QUICK_RESOLUTION,
+    quick_sh_interval,
+    scene_points,
+    thin_points,
+)
 from moegs.experts.stg_decoder import FeatureDecoder
 from moegs.gaussians import GaussianFrame
 from moegs.render import RenderOutput
@@ -240,6 +247,7 @@ class STGConfig(ExpertConfig):
             "strategy.guided_from": at(s.guided_from),
             "strategy.guided_gap": at(s.guided_gap),
             "train.iterations": QUICK_ITERATIONS,
+            "train.sh_degree_interval": quick_sh_interval(paper),
             "train.resolution_scale": QUICK_RESOLUTION,
         }
 
@@ -491,7 +499,9 @@ class STGExpert(Expert):
 
     # -- rendering ------------------------------------------------------------------------------------
     def on_step(self, step: int) -> bool:
-        self.active_sh_degree = active_sh_degree(step, self.config.sh_degree)
+        self.active_sh_degree = active_sh_degree(
+            step, self.config.sh_degree, self.config.train.sh_degree_interval
+        )
         return False
 
     def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:

@@ -18,6 +18,9 @@ class TrainConfig:
     resolution_scale: float | None = None
     """``resolution_scale`` passed to the scene loader for this run (None: the loader's default, which
     is the dataset's protocol)."""
+    sh_degree_interval: int = 1000
+    """One more spherical-harmonics band every this many iterations, up to the expert's ``sh_degree``
+    (3DGS ``oneupSHdegree`` every 1000, ``train.py``; every expert here inherits it)."""
     seed: int = 0
     """Seeds the initialisation subsampling, view order and every random op of training."""
     eval_every: int = 0
@@ -36,6 +39,8 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.iterations < 1:
             raise ValueError(f"TrainConfig.iterations must be >= 1, got {self.iterations}")
+        if self.sh_degree_interval < 1:
+            raise ValueError(f"TrainConfig.sh_degree_interval must be >= 1, got {self.sh_degree_interval}")
         if self.batch_size < 1:
             raise ValueError(f"TrainConfig.batch_size must be >= 1, got {self.batch_size}")
         if not 0.0 <= self.lambda_dssim <= 1.0:

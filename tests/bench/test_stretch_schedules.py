@@ -51,7 +51,7 @@ def _field(config, dotted: str):
 @pytest.mark.parametrize(("expert", "scene"), CASES)
 def test_every_schedule_field_is_either_stretched_or_a_kept_period(expert, scene):
     quick = config_for(expert, scene, "quick").reductions
-    words = ("steps", "warm_up", "_from", "_until", "_every", "iterations", "_at", "_gap")
+    words = ("steps", "warm_up", "_from", "_until", "_every", "_interval", "iterations", "_at", "_gap")
     schedule_like = {k for k in quick if any(w in k for w in words) and k != "train.iterations"}
     stretched, kept = set(schedules.SCHEDULE_FIELDS[expert]), schedule_like & set(schedules.INTERVAL_FIELDS)
     assert not stretched & kept

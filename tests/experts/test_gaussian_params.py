@@ -75,8 +75,8 @@ def test_activate_and_overrides():
 
 def test_sh_schedule_and_helpers():
     # 3DGS: oneupSHdegree when iteration % 1000 == 0, before rendering that iteration
-    assert [active_sh_degree(s) for s in (1, 999, 1000, 2500, 3000, 30_000)] == [0, 0, 1, 2, 3, 3]
-    assert active_sh_degree(5000, max_degree=1) == 1
+    assert [active_sh_degree(s, 3, 1000) for s in (1, 999, 1000, 2500, 3000, 30_000)] == [0, 0, 1, 2, 3, 3]
+    assert active_sh_degree(5000, 1, 1000) == 1 and active_sh_degree(100, 3, 35) == 2
     assert num_sh_bases(3) == 16 and SH_C0 == pytest.approx(0.28209479)
     rgb = torch.rand(4, 3)
     torch.testing.assert_close(sh0_to_rgb(rgb_to_sh0(rgb)), rgb)
