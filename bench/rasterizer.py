@@ -3,13 +3,16 @@
     python -m bench.rasterizer                       # run tests/benchmarks, write runs/rasterizer/*.json|md
     python -m bench.rasterizer --json saved.json     # only build the table from a saved run
     python -m bench.rasterizer --readme README.md    # also rewrite README (results:rasterizer section)
+    python -m bench.rasterizer --backend cuda --readme README.md   # on a GPU: the gsplat cases only,
+                                                     # README section results:rasterizer-cuda
 
 Speeds are ratios inside ONE run (medians of the same machine and load), checked against the targets
 of the core-engine issue: compiled CPU fwd+bwd >= 3x the torch reference at 5k/128² and 20k/256²,
 single-pass K=3 rendering >= 1.5x three separate renders (the paper reports 1.67x FPS on a GPU),
 compiled-path peak memory < 500 MB at 100k/512²; and the compiled kernel against gsplat's own
 pure-PyTorch rasterization (fwd+bwd, through our CUDA glue on CPU tensors): >= 15x at 20k/256² and
->= 30x at 100k/512² (issue targets).
+>= 30x at 100k/512² (issue targets). With ``--backend cuda`` it runs only the gsplat (CUDA) cases and
+reports single-pass K=3 rendering against three renders at the CPU case's scale and at the paper's.
 """
 
 from __future__ import annotations
@@ -29,8 +32,11 @@ MEMORY_TARGET_MB = 500.0
 GSPLAT_TARGETS = {20_000: 15.0, 100_000: 30.0}
 
 
-def run_suite(json_path: Path) -> None:
-    """Run the benchmark suite (``tests/benchmarks``) with its results saved as ``json_path``."""
+def run_suite(json_path: Path, backend: str = "cpu") -> None:
+    """Run the benchmark suite (``tests/benchmarks``) with its results saved as ``json_path``.
+
+    ``backend="cuda"`` selects the gsplat cases only (``-k cuda``); ``"cpu"`` runs everything that can run.
+    """
     json_path.parent.mkdir(parents=True, exist_ok=True)
     cmd = [
         sys.executable,
@@ -43,12 +49,17 @@ def run_suite(json_path: Path) -> None:
         "--benchmark-enable",
         "--benchmark-only",
         f"--benchmark-json={json_path}",
+        *(["-k", "cuda"] if backend == "cuda" else []),
     ]
     subprocess.run(cmd, check=True, cwd=REPO)
 
 
 def _cases(data: dict) -> dict[tuple, dict]:
-    """``(test, n, res, backward, backend, single_pass) -> {"median_ms", "peak_mb"}``."""
+    """``(test, n, res, backward, backend, single_pass) -> {"median_ms", "peak_mb"}``.
+
+    ``peak_mb`` is the render's peak RSS above the process's RSS before it (CPU) or the peak allocated
+    GPU memory (CUDA).
+    """
     out = {}
     for b in data["benchmarks"]:
         info = b["extra_info"]
@@ -56,7 +67,10 @@ def _cases(data: dict) -> dict[tuple, dict]:
         key = (test, info["n"], info["res"], info["backward"], info["backend"], info.get("single_pass", True))
         peak = info.get("peak_rss_mb")
         extra = None if peak is None else peak - info.get("rss_before_mb", 0.0)
-        out[key] = {"median_ms": 1000 * b["stats"]["median"], "peak_mb": extra}
+        out[key] = {
+            "median_ms": 1000 * b["stats"]["median"],
+            "peak_mb": info.get("peak_cuda_allocated_mb", extra),
+        }
     return out
 
 
@@ -64,33 +78,49 @@ def _ms(value: float | None) -> str:
     return "–" if value is None else f"{value:.1f}"
 
 
-def _single_pass_lines(cases: dict[tuple, dict]) -> list[str]:
-    """K = 3 table: separate vs single-pass medians for rendering (fwd) and training (fwd+bwd).
+def _speedup(cases: dict[tuple, dict], n: int, res: int, backward: bool, backend: str) -> float | None:
+    """Three renders' median over one ``rasterize_multi``'s, or None when a case is missing."""
+    single = cases.get(("test_three_experts", n, res, backward, backend, True))
+    separate = cases.get(("test_three_experts", n, res, backward, backend, False))
+    return separate["median_ms"] / single["median_ms"] if single and separate else None
 
-    The target applies to rendering, which is what the paper's FPS (Table XII) measures.
+
+def _single_pass_lines(cases: dict[tuple, dict], backend: str, repeats: list[dict] = ()) -> list[str]:
+    """K = 3 table: separate vs single-pass medians for rendering (fwd) and training (fwd+bwd), per size.
+
+    The target applies to rendering, which is what the paper's FPS (Table XII) measures. ``repeats``
+    (other runs' cases) add a column with their speed-ups, so the table shows its run-to-run spread.
     """
+    label = {"cpu": "compiled CPU", "cuda": "gsplat, CUDA"}[backend]
+    sizes = sorted({(k[1], k[2]) for k in cases if k[0] == "test_three_experts" and k[4] == backend})
     rows = []
-    for backward in (False, True):
-        single = cases.get(("test_three_experts", 5000, 128, backward, "cpu", True))
-        separate = cases.get(("test_three_experts", 5000, 128, backward, "cpu", False))
-        if not (single and separate):
-            continue
-        speed = separate["median_ms"] / single["median_ms"]
-        target = "none (router training step)"
-        if not backward:
-            verdict = "met" if speed >= SINGLE_PASS_TARGET else "MISSED"
-            target = f"≥ {SINGLE_PASS_TARGET}×: {verdict}; paper: 1.67× FPS on a GPU"
-        rows.append(
-            f"| {'fwd+bwd (training)' if backward else 'fwd (rendering)'} | {_ms(separate['median_ms'])} | "
-            f"{_ms(single['median_ms'])} | {speed:.2f}× | {target} |"
-        )
+    for n, res in sizes:
+        for backward in (False, True):
+            single = cases.get(("test_three_experts", n, res, backward, backend, True))
+            separate = cases.get(("test_three_experts", n, res, backward, backend, False))
+            if not (single and separate):
+                continue
+            speed = _speedup(cases, n, res, backward, backend)
+            target = "none (router training step)"
+            if not backward:
+                verdict = "met" if speed >= SINGLE_PASS_TARGET else "MISSED"
+                target = f"≥ {SINGLE_PASS_TARGET}×: {verdict}; paper: 1.67× FPS on a GPU"
+            mode = "fwd+bwd (training)" if backward else "fwd (rendering)"
+            fps = f"{1000 / separate['median_ms']:.0f} → {1000 / single['median_ms']:.0f}"
+            again = [_speedup(other, n, res, backward, backend) for other in repeats]
+            again_cell = "".join(" – |" if x is None else f" {x:.2f}× |" for x in again)
+            rows.append(
+                f"| {n // 1000}k each, {res}², {mode} | {_ms(separate['median_ms'])} | "
+                f"{_ms(single['median_ms'])} | {fps} | {speed:.2f}× |{again_cell} {target} |"
+            )
     if not rows:
         return []
+    again_head = "".join(f" speed-up, run {k + 2} |" for k in range(len(repeats)))
     return [
         "",
-        "| K = 3 experts, 5k Gaussians each, 128², compiled CPU | three `rasterize` (ms) "
-        "| one `rasterize_multi` (ms) | speed-up | target |",
-        "|---|---|---|---|---|",
+        f"| K = 3 experts, {label} | three `rasterize` (ms) | one `rasterize_multi` (ms) | calls/s "
+        f"(three → one) | speed-up |{again_head} target |",
+        "|---|---|---|---|---|" + "---|" * len(repeats) + "---|",
         *rows,
     ]
 
@@ -149,7 +179,7 @@ def markdown(data: dict) -> str:
                 f"| {name} | {_ms(ref and ref['median_ms'])} | {_ms(cpu['median_ms'])} | "
                 f"{'–' if speed is None else f'{speed:.1f}×'} | {_ms(cpu['peak_mb'])} | {target} |"
             )
-    lines += _single_pass_lines(cases)
+    lines += _single_pass_lines(cases, "cpu")
     lines += _gsplat_lines(cases)
     machine = data.get("machine_info", {})
     cpu_name = machine.get("cpu", {}).get("brand_raw") or platform.processor() or machine.get("machine", "?")
@@ -161,27 +191,70 @@ def markdown(data: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def cuda_markdown(data: dict, repeats: list[dict] = ()) -> str:
+    """The README table of a ``--backend cuda`` run: gsplat renders, and single pass against K renders.
+
+    ``repeats``: later runs on the same machine, whose single-pass speed-ups get a column each.
+    """
+    cases = _cases(data)
+    lines = ["| case | gsplat, CUDA (ms) | peak GPU memory allocated (MB) |", "|---|---|---|"]
+    sizes = sorted({(k[1], k[2]) for k in cases if k[0] == "test_rasterize" and k[4] == "cuda"})
+    for n, res in sizes:
+        for backward in (False, True):
+            if got := cases.get(("test_rasterize", n, res, backward, "cuda", True)):
+                name = f"{n // 1000}k Gaussians, {res}², {'fwd+bwd' if backward else 'fwd'}"
+                lines.append(f"| {name} | {_ms(got['median_ms'])} | {_ms(got['peak_mb'])} |")
+    lines += _single_pass_lines(cases, "cuda", [_cases(other) for other in repeats])
+    device = next(
+        (b["extra_info"]["device_name"] for b in data["benchmarks"] if "device_name" in b["extra_info"]), "?"
+    )
+    versions = next(
+        (b["extra_info"]["versions"] for b in data["benchmarks"] if "versions" in b["extra_info"]), ""
+    )
+    lines += [
+        "",
+        f"Medians of {'one' if not repeats else 'the first'} `python -m bench.rasterizer --backend cuda` run "
+        f"on {device} ({data.get('datetime', '?')[:10]}; {versions}), each call synchronised; calls/s = "
+        f"1000 / median.{' Later runs: speed-ups only.' if repeats else ''}",
+    ]
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.rasterizer", description=__doc__.split("\n\n")[0])
-    p.add_argument("--json", type=Path, help="build the table from this saved pytest-benchmark JSON")
+    p.add_argument(
+        "--json",
+        type=Path,
+        action="append",
+        help="build the table from this saved pytest-benchmark JSON (cuda: repeat for later runs, whose "
+        "speed-ups get a column each)",
+    )
     p.add_argument("--out", type=Path, default=REPO / "runs" / "rasterizer", help="output folder")
-    p.add_argument("--readme", type=Path, help="rewrite this README's results:rasterizer section")
+    p.add_argument("--readme", type=Path, help="rewrite this README's results:rasterizer(-cuda) section")
+    p.add_argument(
+        "--backend", choices=["cpu", "cuda"], default="cpu", help="cuda: only the gsplat cases (needs a GPU)"
+    )
     args = p.parse_args(argv)
-    json_path = args.json
-    if json_path is None:
-        json_path = args.out / "benchmark.json"
-        run_suite(json_path)
-    if not json_path.is_file():
-        print(f"error: no benchmark JSON at {json_path}", file=sys.stderr)
+    out = args.out if args.backend == "cpu" else args.out.with_name(f"{args.out.name}-cuda")
+    paths = args.json
+    if paths is None:
+        paths = [out / "benchmark.json"]
+        run_suite(paths[0], args.backend)
+    if args.backend == "cpu" and len(paths) > 1:
+        print("error: the CPU table is built from one --json run", file=sys.stderr)
         return 2
-    table = markdown(json.loads(json_path.read_text()))
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "table.md").write_text(table)
+    if missing := [str(path) for path in paths if not path.is_file()]:
+        print(f"error: no benchmark JSON at {', '.join(missing)}", file=sys.stderr)
+        return 2
+    data, *repeats = [json.loads(path.read_text()) for path in paths]
+    table = markdown(data) if args.backend == "cpu" else cuda_markdown(data, repeats)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "table.md").write_text(table)
     print(table)
     if args.readme:
-        from moegs.compare import update_readme
+        from bench.readme import update_readme
 
-        update_readme(args.readme, "rasterizer", table)
+        update_readme(args.readme, "rasterizer" if args.backend == "cpu" else "rasterizer-cuda", table)
     return 0
 
 

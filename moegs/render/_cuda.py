@@ -66,13 +66,23 @@ def check(device: torch.device, dtype: torch.dtype) -> None:
         raise TypeError(f"backend='cuda' (gsplat) needs float32 Gaussians, got {dtype}")
 
 
+# gsplat 1.5's fused projection backward sums the gradients of one warp's threads that hold the same
+# Gaussian index, whatever their batch: with batches of fewer than 32 Gaussians, Gaussian i of one group
+# takes the gradient of Gaussian i of the next (measured on an H100, gsplat 1.5.3: the means gradient of a
+# 25-Gaussian group was off by up to 1.6 where 9- and 17-Gaussian groups followed it; upstream fixed the
+# same defect in the packed path, gsplat PR 1059). Padding every group of a multi-group call to at least a
+# warp keeps one batch per Gaussian index inside any warp.
+MIN_GROUP_WIDTH = 32
+
+
 def _padded_layout(groups: Tensor, num_groups: int) -> tuple[Tensor, int]:
     """Where each Gaussian goes when the groups are padded to one batch ``[G, M]``.
 
-    Returns ``slot [N]`` (flat index into ``G * M``, stable within a group) and ``M`` (the largest group).
+    Returns ``slot [N]`` (flat index into ``G * M``, stable within a group) and ``M``: the largest group,
+    at least ``MIN_GROUP_WIDTH`` when there are several groups.
     """
     counts = torch.bincount(groups, minlength=num_groups)
-    width = max(int(counts.max()), 1)
+    width = max(int(counts.max()), MIN_GROUP_WIDTH if num_groups > 1 else 1)
     order = torch.argsort(groups, stable=True)
     starts = torch.cumsum(counts, 0) - counts
     rank = torch.empty_like(groups)
