@@ -14,7 +14,7 @@ Resolution order (each step is recorded in :attr:`Recipe.steps` and in a run's `
    (``ExpertConfig.SCENE_OVERRIDES``: Grid4D ``dnerf:lego`` -> grid lr x250 ...); rules tied to a real
    dataset's world frame are turned off elsewhere (``ExpertConfig.own_frame_fields``: STG's N3V z prune);
 3. **preset reduction**: ``paper`` changes nothing; ``quick`` applies the expert's named CPU reductions
-   (``ExpertConfig.quick_fields``: fewer iterations, points, levels ...), and nothing else;
+   (``ExpertConfig.quick_reductions``: fewer iterations, points, levels ...), and nothing else;
 4. **user overrides**: dotted field names, e.g. ``{"train.iterations": 100, "strategy.densify_every": 50}``;
 5. **background**: the colour the original trains and evaluates on for this dataset
    (``ExpertConfig.BACKGROUNDS``), which :attr:`Recipe.load_kwargs` passes to ``load_scene``.
@@ -175,7 +175,7 @@ def config_for(
     real = not scene.startswith("synthetic:")
     frame_overrides = dict(cls.own_frame_fields(config, dataset, real))
     config = with_fields(config, frame_overrides)
-    reductions = dict(cls.quick_fields(config)) if preset == "quick" else {}
+    reductions = dict(cls.quick_reductions(config)) if preset == "quick" else {}
     config = with_fields(config, reductions)
     user = dict(overrides or {})
     config = with_fields(config, user)

@@ -14,8 +14,9 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene
+from moegs.experts.base import QUICK_ITERATIONS
 from moegs.experts.gaussian_params import init_splats
-from moegs.experts.static import QUICK_ITERATIONS, StaticConfig, StaticExpert, scene_points, thin_points
+from moegs.experts.static import StaticConfig, StaticExpert, scene_points, thin_points
 from moegs.gaussians import GaussianFrame
 
 QUICK_STATIC_ITERATIONS = (

@@ -28,17 +28,10 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene
-from moegs.experts.base import DatasetPreset
+from moegs.experts.base import QUICK_ITERATIONS, DatasetPreset
 from moegs.experts.canonical import QUICK_STATIC_ITERATIONS, DeformingExpert
 from moegs.experts.gaussian_params import activate
-from moegs.experts.static import (
-    QUICK_DENSIFY,
-    QUICK_ITERATIONS,
-    QUICK_POINTS,
-    QUICK_RESOLUTION,
-    StaticConfig,
-    quick_sh_interval,
-)
+from moegs.experts.static import QUICK_DENSIFY, QUICK_POINTS, QUICK_RESOLUTION, StaticConfig
 from moegs.fields import Heads, PositionalEncoding, SkipMLP, mlp
 from moegs.gaussians import GaussianFrame
 from moegs.train.config import TrainConfig
@@ -183,7 +176,6 @@ class DeformableConfig(StaticConfig):
             # deform_lr_max_steps stays 40k: a 600-step decay starves the MLP (measured 22.3 vs 26.7 dB)
             **QUICK_DENSIFY,
             "train.iterations": QUICK_ITERATIONS,
-            "train.sh_degree_interval": quick_sh_interval(paper),
             "train.resolution_scale": QUICK_RESOLUTION,
         }
 

@@ -35,17 +35,16 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene, View
-from moegs.experts.base import DatasetPreset, Expert, ExpertConfig, splat_param_groups
-from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats, num_sh_bases
-from moegs.experts.static import (
+from moegs.experts.base import (
     QUICK_ITERATIONS,
-    QUICK_POINTS,
-    QUICK_RESOLUTION,
-    quick_sh_interval,
+    DatasetPreset,
+    Expert,
+    ExpertConfig,
     quick_step,
-    scene_points,
-    thin_points,
+    splat_param_groups,
 )
+from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats, num_sh_bases
+from moegs.experts.static import QUICK_POINTS, QUICK_RESOLUTION, scene_points, thin_points
 from moegs.fields.mlp import Heads, mlp
 from moegs.gaussians import GaussianFrame
 from moegs.render import RenderOutput
@@ -447,7 +446,6 @@ class ED3DGSConfig(ExpertConfig):
             "strategy.densify_until": int(QUICK_ITERATIONS * 0.75),  # the last densified Gaussians train
             "strategy.densify_every": 100,  # the original interval (see static.QUICK_DENSIFY)
             "train.iterations": QUICK_ITERATIONS,
-            "train.sh_degree_interval": quick_sh_interval(paper),
             "train.batch_size": 1,  # N3V / HyperNeRF batch 2 (4) -> 1 (CPU cost; one view per step)
             "train.resolution_scale": QUICK_RESOLUTION,
         }

@@ -30,16 +30,10 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene
-from moegs.experts.base import DatasetPreset
+from moegs.experts.base import QUICK_ITERATIONS, DatasetPreset
 from moegs.experts.canonical import QUICK_STATIC_ITERATIONS, DeformingExpert
 from moegs.experts.gaussian_params import activate, num_sh_bases, sh_coeffs
-from moegs.experts.static import (
-    QUICK_ITERATIONS,
-    QUICK_POINTS,
-    QUICK_RESOLUTION,
-    StaticConfig,
-    quick_sh_interval,
-)
+from moegs.experts.static import QUICK_POINTS, QUICK_RESOLUTION, StaticConfig
 from moegs.fields import Heads, HexPlane, mlp, xavier_weights_
 from moegs.gaussians import GaussianFrame
 from moegs.train.config import TrainConfig
@@ -303,7 +297,6 @@ class FourDGSConfig(StaticConfig):
             "strategy.prune_from": 100,
             "strategy.prune_every": 400,
             "train.iterations": QUICK_ITERATIONS,
-            "train.sh_degree_interval": quick_sh_interval(paper),
             "train.batch_size": 1,  # N3V / HyperNeRF batch 2 (4) -> 1 (CPU cost; one view per step)
             "train.resolution_scale": QUICK_RESOLUTION,
         }

@@ -29,17 +29,10 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import Scene
-from moegs.experts.base import DatasetPreset
+from moegs.experts.base import QUICK_ITERATIONS, DatasetPreset
 from moegs.experts.canonical import QUICK_STATIC_ITERATIONS, DeformingExpert
 from moegs.experts.gaussian_params import activate
-from moegs.experts.static import (
-    QUICK_DENSIFY,
-    QUICK_ITERATIONS,
-    QUICK_POINTS,
-    QUICK_RESOLUTION,
-    StaticConfig,
-    quick_sh_interval,
-)
+from moegs.experts.static import QUICK_DENSIFY, QUICK_POINTS, QUICK_RESOLUTION, StaticConfig
 from moegs.fields import DecomposedHashGrid4D, Heads, mlp
 from moegs.gaussians import GaussianFrame
 from moegs.render.projection import quat_to_rotmat
@@ -309,7 +302,6 @@ class Grid4DConfig(StaticConfig):
             # deform_lr_max_steps stays: a 600-step decay starves grid and MLP (measured 22.7 vs 28.2 dB)
             **QUICK_DENSIFY,
             "train.iterations": QUICK_ITERATIONS,
-            "train.sh_degree_interval": quick_sh_interval(paper),
             "train.resolution_scale": QUICK_RESOLUTION,
         }
 

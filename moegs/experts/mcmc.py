@@ -23,16 +23,9 @@ from torch import Tensor, nn
 
 from moegs.camera import Camera
 from moegs.data.scene import PointCloud, Scene, View
+from moegs.experts.base import QUICK_ITERATIONS
 from moegs.experts.gaussian_params import activate, init_splats
-from moegs.experts.static import (
-    QUICK_ITERATIONS,
-    QUICK_RESOLUTION,
-    StaticConfig,
-    StaticExpert,
-    quick_sh_interval,
-    scene_points,
-    thin_points,
-)
+from moegs.experts.static import QUICK_RESOLUTION, StaticConfig, StaticExpert, scene_points, thin_points
 from moegs.gaussians import GaussianFrame
 from moegs.train.strategy import MCMCStrategy, Strategy
 
@@ -67,7 +60,6 @@ class MCMCConfig(StaticConfig):
             "strategy.refine_until": 500,
             "strategy.refine_every": 25,
             "train.iterations": QUICK_ITERATIONS,
-            "train.sh_degree_interval": quick_sh_interval(paper),
             "train.resolution_scale": QUICK_RESOLUTION,
         }
 

@@ -14,35 +14,17 @@ import torch
 
 from moegs.camera import Camera
 from moegs.data.scene import PointCloud, Scene
-from moegs.experts.base import DatasetPreset, Expert, ExpertConfig, splat_param_groups
+from moegs.experts.base import QUICK_ITERATIONS, DatasetPreset, Expert, ExpertConfig, splat_param_groups
 from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats
 from moegs.gaussians import GaussianFrame
 from moegs.train.config import TrainConfig
 from moegs.train.params import ParamGroup
-from moegs.train.strategy import NEVER, ADCStrategy, Strategy
+from moegs.train.strategy import ADCStrategy, Strategy
 
 QUICK_RESOLUTION = 0.125  # quick presets: D-NeRF 800x800 -> 100x100 so a run takes about a minute on 2 cores
-QUICK_ITERATIONS = (
-    600  # quick presets: the static baseline's 30k -> 600 (50x shorter), shared by every expert
-)
 QUICK_POINTS = (
     5000  # quick presets: at most 5k initial points (D-NeRF's 100k random points; CPU rasterizer cost)
 )
-
-
-def quick_step(step: int, iterations: int) -> int:
-    """Iteration ``step`` of an ``iterations``-long schedule moved to the same fraction of the quick run
-    (``NEVER`` stays never)."""
-    return step if step >= NEVER else round(step * QUICK_ITERATIONS / iterations)
-
-
-def quick_sh_interval(paper: ExpertConfig) -> int:
-    """The recipe's SH-band interval moved to the same fraction of the quick run (3DGS: one band per 1000
-    of 30k iterations -> per 20 of 600), so every band trains as long, relative to the run, as in the
-    original. Measured: 4DGaussians stretched to 3000 iterations on the N3V stand-in with the unscaled
-    1000 switched band 3 on at the last step, a colour cast on every view (25.0 dB full, 23.7 dynamic);
-    scaled, 33.3 and 28.1 dB (no SH at all: 32.7 and 27.1)."""
-    return max(1, quick_step(paper.train.sh_degree_interval, paper.train.iterations))
 
 
 QUICK_DENSIFY = {  # quick: 3DGS ADC 500-15k every 100, reset every 3000 -> 100-450 every 100, reset at 300
@@ -103,7 +85,6 @@ class StaticConfig(ExpertConfig):
             "means_lr_max_steps": QUICK_ITERATIONS,  # decay over the whole short run, as 3DGS over 30k
             **QUICK_DENSIFY,
             "train.iterations": QUICK_ITERATIONS,
-            "train.sh_degree_interval": quick_sh_interval(paper),
             "train.resolution_scale": QUICK_RESOLUTION,
         }
 

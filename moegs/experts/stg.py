@@ -40,6 +40,7 @@ from moegs.camera import Camera
 from moegs.data.scene import PointCloud, Scene, View
 from moegs.experts import stg_guided
 from moegs.experts.base import (
+    QUICK_ITERATIONS,
     DatasetPreset,
     Expert,
     ExpertConfig,
@@ -50,14 +51,7 @@ from moegs.experts.base import (
     splat_param_groups,
 )
 from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats
-from moegs.experts.static import (
-    QUICK_ITERATIONS,
-    QUICK_POINTS,
-    QUICK_RESOLUTION,
-    quick_sh_interval,
-    scene_points,
-    thin_points,
-)
+from moegs.experts.static import QUICK_POINTS, QUICK_RESOLUTION, scene_points, thin_points
 from moegs.experts.stg_decoder import FeatureDecoder
 from moegs.gaussians import GaussianFrame
 from moegs.render import RenderOutput
@@ -247,7 +241,6 @@ class STGConfig(ExpertConfig):
             "strategy.guided_from": at(s.guided_from),
             "strategy.guided_gap": at(s.guided_gap),
             "train.iterations": QUICK_ITERATIONS,
-            "train.sh_degree_interval": quick_sh_interval(paper),
             "train.resolution_scale": QUICK_RESOLUTION,
         }
 

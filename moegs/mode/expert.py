@@ -33,8 +33,8 @@ from torch import Tensor, nn
 from moegs.camera import Camera
 from moegs.data.scene import Scene, View
 from moegs.experts import get_expert_class
-from moegs.experts.base import DatasetPreset, Expert, ExpertConfig
-from moegs.experts.static import QUICK_ITERATIONS, QUICK_RESOLUTION
+from moegs.experts.base import QUICK_ITERATIONS, DatasetPreset, Expert, ExpertConfig
+from moegs.experts.static import QUICK_RESOLUTION
 from moegs.gaussians import GaussianFrame
 from moegs.mode.gating import top_k_gates, warmup_scores, weight_spline
 from moegs.train.params import ParamGroup
@@ -119,7 +119,7 @@ class MoDEConfig(ExpertConfig):
         def quick(config: MoDEConfig) -> MoDEConfig:
             from moegs.recipes import with_fields
 
-            return with_fields(config, cls.quick_fields(config))
+            return with_fields(config, cls.quick_reductions(config))
 
         return {
             "code": code,

@@ -79,5 +79,7 @@ def test_cuda_table_shows_repeat_runs_speedups():
 
     text = cuda_markdown(run(0.001, 0.002), [run(0.001, 0.004), {"benchmarks": []}])
     assert "| speed-up | speed-up, run 2 | speed-up, run 3 | target |" in text
-    assert "| 5k each, 128², fwd (rendering) | 2.0 | 1.0 | 500 → 1000 | 2.00× | 4.00× | – | ≥ 1.5×: met" in text
+    assert (
+        "| 5k each, 128², fwd (rendering) | 2.0 | 1.0 | 500 → 1000 | 2.00× | 4.00× | – | ≥ 1.5×: met" in text
+    )
     assert "Later runs: speed-ups only." in text

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from bench import schedules
-from moegs.experts.static import QUICK_ITERATIONS
+from moegs.experts.base import QUICK_ITERATIONS
 from moegs.recipes import config_for
 from moegs.train.strategy import NEVER
 
