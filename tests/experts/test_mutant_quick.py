@@ -4,7 +4,10 @@ static 3DGS trained on all frames (the no-deformation baseline).
 
 Floors sit 0.5 dB under the lowest value of ``python -m bench.floors`` (seeds 0, 1, 2 x 1 and 2 CPU
 threads, 2026-11-25, SH bands on the quick schedule; min-max in the comments; 1 and 2 threads
-gave identical values): a floor at one machine's value is a coin flip on the next.
+gave identical values): a floor at one machine's value is a coin flip on the next. Checked on a second
+machine (Intel Xeon with AVX-512, seed 0, 2026-11-26; the floors come from an AMD EPYC): static 22.58,
+DeformableGS 27.07 (under the EPYC's minimum, over its floor), Grid4D 29.19, 4DGaussians 26.20, MCMC
+24.62, E-D3DGS 24.95, STG 27.55, Ex4DGS 25.23.
 The runs are shared with the other real-data tests through ``helpers.training`` and cached per code
 version."""
 
