@@ -78,10 +78,14 @@ def _ms(value: float | None) -> str:
     return "–" if value is None else f"{value:.1f}"
 
 
+def _pair(cases: dict[tuple, dict], n: int, res: int, backward: bool, backend: str) -> tuple:
+    """``(single, separate)``: the K = 3 cells of one ``rasterize_multi`` and of three renders (or None)."""
+    return tuple(cases.get(("test_three_experts", n, res, backward, backend, one)) for one in (True, False))
+
+
 def _speedup(cases: dict[tuple, dict], n: int, res: int, backward: bool, backend: str) -> float | None:
     """Three renders' median over one ``rasterize_multi``'s, or None when a case is missing."""
-    single = cases.get(("test_three_experts", n, res, backward, backend, True))
-    separate = cases.get(("test_three_experts", n, res, backward, backend, False))
+    single, separate = _pair(cases, n, res, backward, backend)
     return separate["median_ms"] / single["median_ms"] if single and separate else None
 
 
@@ -96,11 +100,10 @@ def _single_pass_lines(cases: dict[tuple, dict], backend: str, repeats: list[dic
     rows = []
     for n, res in sizes:
         for backward in (False, True):
-            single = cases.get(("test_three_experts", n, res, backward, backend, True))
-            separate = cases.get(("test_three_experts", n, res, backward, backend, False))
+            single, separate = _pair(cases, n, res, backward, backend)
             if not (single and separate):
                 continue
-            speed = _speedup(cases, n, res, backward, backend)
+            speed = separate["median_ms"] / single["median_ms"]
             target = "none (router training step)"
             if not backward:
                 verdict = "met" if speed >= SINGLE_PASS_TARGET else "MISSED"
