@@ -61,6 +61,7 @@ setup(
         Extension(
             f"moegs.kernels.{_flags['LIBRARY']}",
             sources=[f"moegs/kernels/{name}" for name in _flags["SOURCES"]],
+            depends=[f"moegs/kernels/{name}" for name in _flags["HEADERS"]],
             optional=True,
         )
     ],

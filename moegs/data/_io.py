@@ -21,6 +21,7 @@ from torch import Tensor
 
 from moegs.camera import Camera
 from moegs.data import decoded
+from moegs.data.scene import PointCloud, Scene, View
 
 RESAMPLE = {
     "nearest": Image.Resampling.NEAREST,
@@ -261,6 +262,40 @@ def points_bbox(xyz: Tensor, quantile: float = 0.0) -> Tensor:
         q = torch.tensor([quantile, 1.0 - quantile], dtype=xyz.dtype)
         return torch.quantile(xyz, q, dim=0).to(torch.float32)
     return torch.stack([xyz.min(0).values, xyz.max(0).values]).to(torch.float32)
+
+
+def camera_bbox(cameras: Sequence[Camera]) -> Tensor:
+    """``[2, 3]`` bounds of the camera centres (a scene's content bounds when it has no points)."""
+    return points_bbox(torch.stack([c.center for c in cameras]))
+
+
+def loaded_scene(
+    dataset: str,
+    folder: str,
+    name: str | None,
+    train: list[View],
+    test: list[View],
+    *,
+    cameras: Sequence[Camera],
+    points: PointCloud | None,
+    bbox: Tensor | None = None,
+    **fields: Any,
+) -> Scene:
+    """The ``Scene`` a dataset loader returns: named ``dataset:folder`` unless ``name`` is given, with the
+    3DGS ``extent`` of the training ``cameras`` and, unless ``bbox`` is given, the initial points'
+    1%-trimmed bounds (the cameras' centres without points). ``fields``: the rest of ``Scene``."""
+    if bbox is None:
+        bbox = points_bbox(points.xyz, 0.01) if points is not None else camera_bbox(cameras)
+    return Scene(
+        name=name or f"{dataset}:{folder}",
+        dataset=dataset,
+        train=train,
+        test=test,
+        extent=camera_extent(cameras),
+        points=points,
+        bbox=bbox,
+        **fields,
+    )
 
 
 def frame_window(frames: tuple[int, int] | None, available: int, what: str) -> tuple[int, int]:

@@ -34,12 +34,12 @@ from moegs.camera import Camera, intrinsics
 from moegs.data._init_points import box_points
 from moegs.data._io import (
     background_color,
-    camera_extent,
     entries,
     image_size,
     load_alpha_mask,
     load_json,
     load_rgb,
+    loaded_scene,
     matrix,
     number,
     text,
@@ -141,17 +141,17 @@ def load_dnerf(
     test, _ = _read_split(root, test_split, resolution_scale, bg, resample, native)
     bbox = torch.tensor([[-BOX] * 3, [BOX] * 3])
     points = box_points(bbox, num_points, seed) if num_points > 0 else None
-    return Scene(
-        name=name or f"dnerf:{root.name}",
-        dataset="dnerf",
-        train=train,
-        test=test,
+    return loaded_scene(
+        "dnerf",
+        root.name,
+        name,
+        train,
+        test,
+        cameras=[v.camera for v in train],
+        points=points,
+        bbox=bbox,
         num_frames=len({v.camera.time for v in train}),
         background=bg,
-        bbox=bbox,
-        extent=camera_extent([v.camera for v in train]),
-        points=points,
-        multiview=False,
         meta={
             "test_split": test_split,
             "native_size": list(native),

@@ -41,14 +41,13 @@ from torch import Tensor
 from moegs.camera import Camera, intrinsics
 from moegs.data._init_points import greyish_colors, ply_points, shared_volume_points
 from moegs.data._io import (
-    camera_extent,
     image_size,
     key,
     load_json,
     load_rgb,
+    loaded_scene,
     matrix,
     number,
-    points_bbox,
     vector,
 )
 from moegs.data.scene import PointCloud, Scene, View
@@ -247,21 +246,15 @@ def load_hypernerf(
         "near": scene_json.get("near"),
         "far": scene_json.get("far"),
     }
-    bbox = points_bbox(points.xyz, 0.01) if points is not None else _bbox(train_cams)
-    return Scene(
-        name=name or f"hypernerf:{root.name}",
-        dataset="hypernerf",
-        train=train,
-        test=test,
+    return loaded_scene(
+        "hypernerf",
+        root.name,
+        name,
+        train,
+        test,
+        cameras=train_cams,
+        points=points,
         num_frames=len({v.camera.frame for v in train}),
         background=bg,
-        bbox=bbox,
-        extent=camera_extent(train_cams),
-        points=points,
-        multiview=False,
         meta=meta,
     )
-
-
-def _bbox(cameras: list[Camera]) -> Tensor:
-    return points_bbox(torch.stack([c.center for c in cameras]))

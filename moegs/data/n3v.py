@@ -41,10 +41,10 @@ from torch import Tensor
 from moegs.camera import Camera, intrinsics
 from moegs.data._init_points import colmap_points, ply_points, shared_volume_points
 from moegs.data._io import (
-    camera_extent,
     frame_window,
     image_size,
     load_rgb,
+    loaded_scene,
     normalised_time,
     points_bbox,
     read_colmap,
@@ -285,17 +285,17 @@ def load_n3v(
         "source": "frames" if any(isinstance(s, _FrameDir) for s in sources.values()) else "video",
         "bounds": {c: [float(x) for x in pb[i, 15:]] for i, c in enumerate(names)},
     }
-    bbox = points_bbox(points.xyz, 0.01) if points is not None else _bbox_from_bounds(train_cams, pb[:, 15:])
-    return Scene(
-        name=name or f"n3v:{root.name}",
-        dataset="n3v",
-        train=train,
-        test=test,
+    return loaded_scene(
+        "n3v",
+        root.name,
+        name,
+        train,
+        test,
+        cameras=train_cams,
+        points=points,
+        bbox=_bbox_from_bounds(train_cams, pb[:, 15:]) if points is None else None,
         num_frames=window[1] - window[0],
         background=bg,
-        bbox=bbox,
-        extent=camera_extent(train_cams),
-        points=points,
         multiview=True,
         meta=meta,
         cache=ImageCache(max_items=32),

@@ -35,13 +35,12 @@ from torch import Tensor
 from moegs.camera import Camera
 from moegs.data._init_points import shared_volume_points
 from moegs.data._io import (
-    camera_extent,
     frame_window,
     key,
     load_json,
     load_rgb,
+    loaded_scene,
     normalised_time,
-    points_bbox,
     read_mask,
     require_file,
 )
@@ -193,22 +192,16 @@ def load_panoptic(
         meta["point_seg_fraction"] = float((seg > 0.5).float().mean())
     else:
         points = _fallback_points(first, num_points, seed) if num_points > 0 else None
-    bbox = points_bbox(points.xyz, 0.01) if points is not None else _camera_bbox(first)
-    return Scene(
-        name=name or f"panoptic:{root.name}",
-        dataset="panoptic",
-        train=train,
-        test=test,
+    return loaded_scene(
+        "panoptic",
+        root.name,
+        name,
+        train,
+        test,
+        cameras=first,
+        points=points,
         num_frames=window[1] - window[0],
         background=torch.zeros(3),
-        bbox=bbox,
-        extent=camera_extent(first),
-        points=points,
         multiview=True,
         meta=meta,
     )
-
-
-def _camera_bbox(cameras: list[Camera]) -> Tensor:
-    centers = torch.stack([c.center for c in cameras])
-    return points_bbox(centers)

@@ -45,12 +45,11 @@ from torch import Tensor
 from moegs.camera import Camera, intrinsics
 from moegs.data._init_points import colmap_points, shared_volume_points
 from moegs.data._io import (
-    camera_extent,
     colmap_w2c,
     image_size,
     load_rgb,
+    loaded_scene,
     normalised_time,
-    points_bbox,
     read_colmap,
     require_file,
 )
@@ -276,21 +275,16 @@ def load_technicolor(
         points = shared_volume_points(
             train_cams, num_points, 0.5, 10.0, seed, "raw layout has no COLMAP points"
         )
-    bbox = (
-        points_bbox(points.xyz, 0.01)
-        if points is not None
-        else points_bbox(torch.stack([c.center for c in train_cams]))
-    )
-    return Scene(
-        name=name or f"technicolor:{root.name.lower()}",
-        dataset="technicolor",
-        train=train,
-        test=test,
+    return loaded_scene(
+        "technicolor",
+        root.name.lower(),
+        name,
+        train,
+        test,
+        cameras=train_cams,
+        points=points,
         num_frames=n,
         background=bg,
-        bbox=bbox,
-        extent=camera_extent(train_cams),
-        points=points,
         multiview=True,
         meta=meta,
     )

@@ -37,15 +37,24 @@ if TYPE_CHECKING:
 
 def splat_param_groups(
     splats: nn.ParameterDict,
-    means: tuple[float, float, int],
+    config: ExpertConfig,
+    spatial_lr_scale: float,
     constant: list[tuple[str, float]],
     **options,
 ) -> list[ParamGroup]:
-    """The 3DGS optimiser layout over per-Gaussian tensors: ``means`` on the exponential schedule
-    ``(lr, lr_final, max_steps)`` (already times the spatial scale), each ``(key, lr)`` of ``constant``
-    at a constant rate; ``options`` (``eps``, ``optimizer``) apply to every group."""
-    lr, lr_final, max_steps = means
-    first = ParamGroup("means", [splats["means"]], lr, lr_final=lr_final, max_steps=max_steps, **options)
+    """The 3DGS optimiser layout over per-Gaussian tensors: ``means`` on the config's exponential
+    schedule (``means_lr`` -> ``means_lr_final`` over ``means_lr_max_steps``, both rates times
+    ``spatial_lr_scale``), each ``(key, lr)`` of ``constant`` at a constant rate; ``options`` (``eps``,
+    ``optimizer``) apply to every group."""
+    c, s = config, spatial_lr_scale
+    first = ParamGroup(
+        "means",
+        [splats["means"]],
+        c.means_lr * s,
+        lr_final=c.means_lr_final * s,
+        max_steps=c.means_lr_max_steps,
+        **options,
+    )
     return [first] + [ParamGroup(key, [splats[key]], rate, **options) for key, rate in constant]
 
 

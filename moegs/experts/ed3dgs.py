@@ -658,7 +658,6 @@ class ED3DGSExpert(Expert):
     def param_groups(self) -> list[ParamGroup]:
         c, sc, s, f = self.config, self.spatial_lr_scale, self.splats, self.fields
         deformation = [f.temporal, *f.coarse.parameters(), *f.fine.parameters()]
-        means = (c.means_lr * sc, c.means_lr_final * sc, c.means_lr_max_steps)
         constant = [
             ("embedding", c.embedding_lr),
             ("sh0", c.sh0_lr),
@@ -667,7 +666,7 @@ class ED3DGSExpert(Expert):
             ("scales", c.scales_lr),
             ("quats", c.quats_lr),
         ]
-        groups = splat_param_groups(s, means, constant)
+        groups = splat_param_groups(s, c, sc, constant)
         groups.append(
             ParamGroup(
                 "deformation",

@@ -786,8 +786,7 @@ class Ex4DGSExpert(Expert):
             ("centers", c.centers_lr),
             ("widths", c.widths_lr),
         ]
-        means = (c.means_lr * sc, c.means_lr_final * sc, c.means_lr_max_steps)
-        return splat_param_groups(s, means, constant, eps=c.optimizer_eps, optimizer=c.optimizer)
+        return splat_param_groups(s, c, sc, constant, eps=c.optimizer_eps, optimizer=c.optimizer)
 
     def strategy(self) -> Strategy:
         return self.config.strategy

@@ -143,7 +143,6 @@ class StaticExpert(Expert):
 
     def param_groups(self) -> list[ParamGroup]:
         c, s = self.config, self.spatial_lr_scale
-        means = (c.means_lr * s, c.means_lr_final * s, c.means_lr_max_steps)
         constant = [
             ("sh0", c.sh0_lr),
             ("shN", c.shN_lr),
@@ -151,7 +150,7 @@ class StaticExpert(Expert):
             ("scales", c.scales_lr),
             ("quats", c.quats_lr),
         ]
-        return splat_param_groups(self.splats, means, constant)
+        return splat_param_groups(self.splats, c, s, constant)
 
     def strategy(self) -> Strategy:
         return self.config.strategy

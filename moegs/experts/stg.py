@@ -564,8 +564,7 @@ class STGExpert(Expert):
             ("trbf_center", c.trbf_center_lr),
             ("trbf_scale", c.trbf_scale_lr),
         ]
-        means = (c.means_lr * sc, c.means_lr_final * sc, c.means_lr_max_steps)
-        groups = splat_param_groups(s, means, constant, optimizer=c.optimizer)
+        groups = splat_param_groups(s, c, sc, constant, optimizer=c.optimizer)
         if self.config.color == "full":
             groups.append(
                 ParamGroup("decoder", list(self.fields.parameters()), c.decoder_lr, optimizer=c.optimizer)

@@ -11,6 +11,8 @@ LIBRARY = "_cpu"
 """File stem of the library, built next to ``moegs/kernels/__init__.py``."""
 SOURCES = ("raster.c", "hashgrid.c")
 """C files of the library, in ``moegs/kernels/``."""
+HEADERS = ("moegs_api.h",)
+"""Header they share (export attribute, OpenMP), in ``moegs/kernels/``."""
 COMPILE_ARGS = ["-O3", "-std=c99", "-fPIC", "-fopenmp", "-ffp-contract=off", "-fvisibility=hidden"]
 LINK_ARGS = ["-fopenmp"]
 # Fallback when the compiler has no OpenMP (e.g. Apple clang without libomp): serial but correct.

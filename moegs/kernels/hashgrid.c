@@ -20,15 +20,7 @@
 #include <stdint.h>
 #include <string.h>
 
-#ifdef _OPENMP
-#include <omp.h>
-#endif
-
-#if defined(_WIN32)
-#define MOEGS_API __declspec(dllexport)
-#else
-#define MOEGS_API __attribute__((visibility("default")))
-#endif
+#include "moegs_api.h"
 
 #define HG_MAX_DIM 3
 #define HG_PAR_MIN 4096 /* points below which the forward runs on the calling thread */

@@ -42,15 +42,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#ifdef _OPENMP
-#include <omp.h>
-#endif
-
-#if defined(_WIN32)
-#define MOEGS_API __declspec(dllexport)
-#else
-#define MOEGS_API __attribute__((visibility("default")))
-#endif
+#include "moegs_api.h"
 
 /* Bump when any exported signature (this file or hashgrid.c) or saved-state layout changes; the loader
  * checks it. 2: the hash encoding (hashgrid.c) joined the library. */
@@ -88,6 +80,46 @@ static float power_cutoff(float opacity) {
 
 static inline int imin(int a, int b) { return a < b ? a : b; }
 static inline int imax(int a, int b) { return a > b ? a : b; }
+
+/* Tile t of the row-major tile grid (ntx tiles across): origin (x0, y0) and size w x h pixels. */
+typedef struct {
+    int x0, y0, w, h, npix;
+} Tile;
+
+static inline Tile tile_at(int64_t t, int ntx, int tile, int W, int H) {
+    Tile r;
+    r.x0 = (int)(t % ntx) * tile;
+    r.y0 = (int)(t / ntx) * tile;
+    r.w = imin(tile, W - r.x0);
+    r.h = imin(tile, H - r.y0);
+    r.npix = r.w * r.h;
+    return r;
+}
+
+/* Gaussian k (depth order) as a tile sees it: its geometry record and its pixel box intersected
+ * with the tile, in tile-local pixels [lx0, lx1] x [ly0, ly1]. */
+typedef struct {
+    float mx, my, ca, cb, cc, op, pcut;
+    int lx0, lx1, ly0, ly1;
+} Footprint;
+
+static inline Footprint footprint(const float *geo, const int32_t *box, int64_t k, Tile r) {
+    const float *g = geo + k * GEO;
+    const int32_t *b = box + 4 * k;
+    Footprint f;
+    f.mx = g[0]; f.my = g[1]; f.ca = g[2]; f.cb = g[3]; f.cc = g[4]; f.op = g[5]; f.pcut = g[6];
+    f.lx0 = imax(b[0], r.x0) - r.x0; f.lx1 = imin(b[1], r.x0 + r.w - 1) - r.x0;
+    f.ly0 = imax(b[2], r.y0) - r.y0; f.ly1 = imin(b[3], r.y0 + r.h - 1) - r.y0;
+    return f;
+}
+
+/* Checks the image arguments of the forward and backward; returns the tile count and sets *ntx,
+ * or ERR_ARGS. */
+static int64_t tile_grid(int64_t n, int64_t d, int32_t G, int32_t W, int32_t H, int32_t tile, int *ntx) {
+    if (n < 0 || d < 1 || G < 1 || W < 1 || H < 1 || tile < 1) return ERR_ARGS;
+    *ntx = (W + tile - 1) / tile;
+    return (int64_t)(*ntx) * ((H + tile - 1) / tile);
+}
 
 MOEGS_API int moegs_abi_version(void) { return MOEGS_ABI_VERSION; }
 
@@ -140,6 +172,30 @@ static inline int row_span(float dy, float mx, float ca, float cb, float cc, flo
     if (*lo < lx0) *lo = lx0;
     if (*hi > lx1) *hi = lx1;
     return *lo <= *hi;
+}
+
+/* Row ly (tile-local) of a footprint: the pixel-centre offset dy and the tile-local pixels [lo, hi]
+ * that can pass the alpha test (row_span); lo > hi when none can. */
+typedef struct {
+    float dy;
+    int lo, hi;
+} Row;
+
+static inline Row footprint_row(const Footprint *f, Tile r, int ly) {
+    Row row;
+    row.dy = ((float)(r.y0 + ly) + 0.5f) - f->my;
+    if (!row_span(row.dy, f->mx, f->ca, f->cb, f->cc, f->pcut, r.x0, f->lx0, f->lx1, &row.lo, &row.hi)) {
+        row.lo = 1;
+        row.hi = 0;
+    }
+    return row;
+}
+
+/* The Gaussian's exponent at pixel lx (tile-local) of a row with offset dy, in the float32 operation
+ * order of the torch reference; *dx is the pixel centre's x offset. */
+static inline float footprint_power(const Footprint *f, Tile r, int lx, float dy, float *dx) {
+    *dx = ((float)(r.x0 + lx) + 0.5f) - f->mx;
+    return -0.5f * (f->ca * *dx * *dx + f->cc * dy * dy) - f->cb * *dx * dy;
 }
 
 /* Inclusive pixel box of a Gaussian, exactly as _torch._bbox_pixels computes it in float32:
@@ -263,10 +319,10 @@ MOEGS_API int moegs_forward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t 
                             const int32_t *grp, const float *col, const int64_t *gstart,
                             const int64_t *tile_off, int64_t total, int32_t *list, int64_t *pairpos,
                             float *image, float *alpha, float *contrib, double *tfinal, int32_t *last) {
-    if (n < 0 || d < 1 || G < 1 || W < 1 || H < 1 || tile < 1) return ERR_ARGS;
+    int ntx;
+    const int64_t ntiles = tile_grid(n, d, G, W, H, tile, &ntx);
+    if (ntiles < 0) return ERR_ARGS;
     if (nthreads < 1) nthreads = 1;
-    const int ntx = (W + tile - 1) / tile, nty = (H + tile - 1) / tile;
-    const int64_t ntiles = (int64_t)ntx * nty;
     if (fill_lists(n, W, tile, box, gstart, tile_off, ntiles, list, pairpos)) return ERR_NOMEM;
 
     /* one float per pair: sum over the tile's pixels of the weights of that Gaussian */
@@ -284,21 +340,17 @@ MOEGS_API int moegs_forward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t 
         unsigned char *done = (unsigned char *)malloc((size_t)(G * npmax));
         int64_t *live_g = (int64_t *)malloc((size_t)G * sizeof(int64_t));
         const int ok = T && acc && lst && done && live_g;
-        if (!ok) {
-#pragma omp atomic write
-            err = 1;
-        }
+        if (!ok) flag_error(&err);
 
 #pragma omp for schedule(dynamic, 1)
         for (int64_t t = 0; t < ntiles; ++t) {
             if (!ok) continue;
-            const int tx0 = (int)(t % ntx) * tile, ty0 = (int)(t / ntx) * tile;
-            const int tw = imin(tile, W - tx0), th = imin(tile, H - ty0), npix = tw * th;
-            const int64_t S = (int64_t)G * npix;
+            const Tile r = tile_at(t, ntx, tile, W, H);
+            const int64_t S = (int64_t)G * r.npix;
             for (int64_t s = 0; s < S; ++s) { T[s] = 1.0; lst[s] = -1; done[s] = 0; }
             memset(acc, 0, (size_t)(S * d) * sizeof(float));
             int64_t live = S; /* (group, pixel) pairs not finished yet */
-            for (int gi = 0; gi < G; ++gi) live_g[gi] = npix; /* the same, per group */
+            for (int gi = 0; gi < G; ++gi) live_g[gi] = r.npix; /* the same, per group */
             const int64_t start = tile_off[t], end = tile_off[t + 1];
             int64_t pos = start;
             for (; pos < end && live > 0; ++pos) {
@@ -307,27 +359,19 @@ MOEGS_API int moegs_forward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t 
                 /* every pixel of this Gaussian's group is finished: it composites nothing here
                  * (a separate render of the group would already have retired the tile) */
                 if (live_g[gk] == 0) { slot[pos] = 0.0f; continue; }
-                const float *g = geo + (int64_t)k * GEO;
-                const float mx = g[0], my = g[1], ca = g[2], cb = g[3], cc = g[4], op = g[5];
-                const float pcut = g[6];
-                const int32_t *b = box + 4 * (int64_t)k;
+                const Footprint f = footprint(geo, box, k, r);
                 const float *ck = col + (int64_t)k * d;
-                /* box of the Gaussian intersected with the tile, in tile-local pixels */
-                const int lx0 = imax(b[0], tx0) - tx0, lx1 = imin(b[1], tx0 + tw - 1) - tx0;
-                const int ly0 = imax(b[2], ty0) - ty0, ly1 = imin(b[3], ty0 + th - 1) - ty0;
                 float wsum = 0.0f;
-                for (int ly = ly0; ly <= ly1; ++ly) {
-                    const float dy = ((float)(ty0 + ly) + 0.5f) - my;
-                    int rx0, rx1;
-                    if (!row_span(dy, mx, ca, cb, cc, pcut, tx0, lx0, lx1, &rx0, &rx1)) continue;
-                    for (int lx = rx0; lx <= rx1; ++lx) {
-                        const int64_t s = (int64_t)gk * npix + ly * tw + lx;
+                for (int ly = f.ly0; ly <= f.ly1; ++ly) {
+                    const Row row = footprint_row(&f, r, ly);
+                    const float dy = row.dy;
+                    for (int lx = row.lo; lx <= row.hi; ++lx) {
+                        const int64_t s = (int64_t)gk * r.npix + ly * r.w + lx;
                         if (done[s]) continue;
-                        const float dx = ((float)(tx0 + lx) + 0.5f) - mx;
-                        /* same float32 operation order as the torch reference */
-                        const float power = -0.5f * (ca * dx * dx + cc * dy * dy) - cb * dx * dy;
-                        if (power > 0.0f || power < pcut) continue;
-                        float a = op * expf(power);
+                        float dx;
+                        const float power = footprint_power(&f, r, lx, dy, &dx);
+                        if (power > 0.0f || power < f.pcut) continue;
+                        float a = f.op * expf(power);
                         if (a > ALPHA_MAX) a = ALPHA_MAX;
                         if (a < ALPHA_MIN) continue;
                         const double tn = T[s] * (1.0 - (double)a);
@@ -351,10 +395,10 @@ MOEGS_API int moegs_forward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t 
 
             /* write the tile out */
             for (int gi = 0; gi < G; ++gi)
-                for (int ly = 0; ly < th; ++ly)
-                    for (int lx = 0; lx < tw; ++lx) {
-                        const int64_t s = (int64_t)gi * npix + ly * tw + lx;
-                        const int64_t o = ((int64_t)gi * H + ty0 + ly) * W + tx0 + lx;
+                for (int ly = 0; ly < r.h; ++ly)
+                    for (int lx = 0; lx < r.w; ++lx) {
+                        const int64_t s = (int64_t)gi * r.npix + ly * r.w + lx;
+                        const int64_t o = ((int64_t)gi * H + r.y0 + ly) * W + r.x0 + lx;
                         memcpy(image + o * d, acc + s * d, (size_t)d * sizeof(float));
                         alpha[o] = (float)(1.0 - T[s]);
                         tfinal[o] = T[s];
@@ -402,10 +446,10 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
                              const int64_t *pairpos, const double *tfinal, const int32_t *last,
                              const float *grad_image, const float *grad_alpha, float *grad_means,
                              float *grad_conics, float *grad_opac, float *grad_colors) {
-    if (n < 0 || d < 1 || G < 1 || W < 1 || H < 1 || tile < 1) return ERR_ARGS;
+    int ntx;
+    const int64_t ntiles = tile_grid(n, d, G, W, H, tile, &ntx);
+    if (ntiles < 0) return ERR_ARGS;
     if (nthreads < 1) nthreads = 1;
-    const int ntx = (W + tile - 1) / tile, nty = (H + tile - 1) / tile;
-    const int64_t ntiles = (int64_t)ntx * nty;
     /* per pair: d(mx, my), d(a, b, c), d(opacity), d(colour)[d] */
     const int64_t stride = 6 + d;
     float *slot = (float *)malloc((size_t)(total > 0 ? total : 1) * stride * sizeof(float));
@@ -424,25 +468,21 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
         double *gcol = (double *)malloc((size_t)d * sizeof(double));
         int32_t *maxlast_g = (int32_t *)malloc((size_t)G * sizeof(int32_t));
         const int ok = T && Tf && B && gi_loc && ga_loc && lst && gcol && maxlast_g;
-        if (!ok) {
-#pragma omp atomic write
-            err = 1;
-        }
+        if (!ok) flag_error(&err);
 
 #pragma omp for schedule(dynamic, 1)
         for (int64_t t = 0; t < ntiles; ++t) {
             if (!ok) continue;
-            const int tx0 = (int)(t % ntx) * tile, ty0 = (int)(t / ntx) * tile;
-            const int tw = imin(tile, W - tx0), th = imin(tile, H - ty0), npix = tw * th;
+            const Tile r = tile_at(t, ntx, tile, W, H);
             const int64_t start = tile_off[t], end = tile_off[t + 1];
             /* load the per-pixel state of the tile */
             int32_t maxlast = -1;
             for (int g = 0; g < G; ++g) {
                 maxlast_g[g] = -1;
-                for (int ly = 0; ly < th; ++ly)
-                    for (int lx = 0; lx < tw; ++lx) {
-                        const int64_t s = (int64_t)g * npix + ly * tw + lx;
-                        const int64_t o = ((int64_t)g * H + ty0 + ly) * W + tx0 + lx;
+                for (int ly = 0; ly < r.h; ++ly)
+                    for (int lx = 0; lx < r.w; ++lx) {
+                        const int64_t s = (int64_t)g * r.npix + ly * r.w + lx;
+                        const int64_t o = ((int64_t)g * H + r.y0 + ly) * W + r.x0 + lx;
                         T[s] = Tf[s] = tfinal[o];
                         lst[s] = last[o];
                         if (last[o] > maxlast_g[g]) maxlast_g[g] = last[o];
@@ -451,7 +491,7 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
                     }
                 if (maxlast_g[g] > maxlast) maxlast = maxlast_g[g];
             }
-            memset(B, 0, (size_t)((int64_t)G * npix * d) * sizeof(double));
+            memset(B, 0, (size_t)((int64_t)G * r.npix * d) * sizeof(double));
             /* Gaussians after the last contributor of every pixel get nothing from this tile */
             for (int64_t pos = start + maxlast + 1; pos < end; ++pos)
                 memset(slot + pos * stride, 0, (size_t)stride * sizeof(float));
@@ -465,28 +505,21 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
                     memset(sl, 0, (size_t)stride * sizeof(float));
                     continue;
                 }
-                const float *g = geo + (int64_t)k * GEO;
-                const float mx = g[0], my = g[1], ca = g[2], cb = g[3], cc = g[4], op = g[5];
-                const float pcut = g[6];
-                const int32_t *b = box + 4 * (int64_t)k;
+                const Footprint f = footprint(geo, box, k, r);
                 const float *ck = col + (int64_t)k * d;
-                const int lx0 = imax(b[0], tx0) - tx0, lx1 = imin(b[1], tx0 + tw - 1) - tx0;
-                const int ly0 = imax(b[2], ty0) - ty0, ly1 = imin(b[3], ty0 + th - 1) - ty0;
                 double gmx = 0, gmy = 0, ga = 0, gb = 0, gc = 0, gop = 0;
                 for (int64_t c = 0; c < d; ++c) gcol[c] = 0.0;
-                for (int ly = ly0; ly <= ly1; ++ly) {
-                    const float dy = ((float)(ty0 + ly) + 0.5f) - my;
-                    int rx0, rx1;
-                    if (!row_span(dy, mx, ca, cb, cc, pcut, tx0, lx0, lx1, &rx0, &rx1)) continue;
-                    for (int lx = rx0; lx <= rx1; ++lx) {
-                        const int64_t s = (int64_t)gk * npix + ly * tw + lx;
+                for (int ly = f.ly0; ly <= f.ly1; ++ly) {
+                    const Row row = footprint_row(&f, r, ly);
+                    const float dy = row.dy;
+                    for (int lx = row.lo; lx <= row.hi; ++lx) {
+                        const int64_t s = (int64_t)gk * r.npix + ly * r.w + lx;
                         if (j > lst[s]) continue; /* behind this pixel's last contributor */
-                        const float dx = ((float)(tx0 + lx) + 0.5f) - mx;
-                        /* recompute alpha exactly as in the forward */
-                        const float power = -0.5f * (ca * dx * dx + cc * dy * dy) - cb * dx * dy;
-                        if (power > 0.0f || power < pcut) continue;
+                        float dx; /* alpha recomputed exactly as in the forward */
+                        const float power = footprint_power(&f, r, lx, dy, &dx);
+                        if (power > 0.0f || power < f.pcut) continue;
                         const float e = expf(power);
-                        const float raw = op * e;
+                        const float raw = f.op * e;
                         const int clamped = raw > ALPHA_MAX;
                         const float a = clamped ? ALPHA_MAX : raw;
                         if (a < ALPHA_MIN) continue;
@@ -510,8 +543,8 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
                         ga += -0.5 * (double)dx * dx * dp;
                         gb += -(double)dx * dy * dp;
                         gc += -0.5 * (double)dy * dy * dp;
-                        gmx += ((double)ca * dx + (double)cb * dy) * dp;
-                        gmy += ((double)cb * dx + (double)cc * dy) * dp;
+                        gmx += ((double)f.ca * dx + (double)f.cb * dy) * dp;
+                        gmy += ((double)f.cb * dx + (double)f.cc * dy) * dp;
                     }
                 }
                 sl[0] = (float)gmx; sl[1] = (float)gmy;
@@ -528,10 +561,7 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
 #pragma omp parallel num_threads(nthreads) if (total > PAR_MIN)
     {
         double *acc = (double *)malloc((size_t)stride * sizeof(double));
-        if (!acc) {
-#pragma omp atomic write
-            err = 1;
-        }
+        if (!acc) flag_error(&err);
 #pragma omp for schedule(static)
         for (int64_t k = 0; k < n; ++k) {
             if (!acc) continue;

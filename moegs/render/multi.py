@@ -20,7 +20,7 @@ from torch import Tensor
 
 from moegs.camera import Camera
 from moegs.gaussians import GaussianFrame, cat
-from moegs.render.pipeline import _check_frame, _check_tensor, _render
+from moegs.render.pipeline import _check_frame, _check_tensor, _Options, _render
 
 
 @dataclass
@@ -103,16 +103,11 @@ def rasterize_multi(
     out = _render(
         joint,
         camera,
+        _Options(sh_degree, antialiased, eps2d, return_depth, return_stats, backend),
         groups=expert_id,
         num_groups=len(frames),
         backgrounds=_backgrounds(backgrounds, len(frames), joint.num_channels, joint.means),
         extra=extra,
-        sh_degree=sh_degree,
-        antialiased=antialiased,
-        eps2d=eps2d,
-        return_depth=return_depth,
-        return_stats=return_stats,
-        backend=backend,
     )
     if return_stats:
         out.info["expert_id"] = expert_id

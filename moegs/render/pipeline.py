@@ -51,6 +51,18 @@ class RenderOutput:
     info: dict[str, Any] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class _Options:
+    """The keyword options ``rasterize`` and ``rasterize_multi`` share (documented on ``rasterize``)."""
+
+    sh_degree: int | None = None
+    antialiased: bool = False
+    eps2d: float | None = None
+    return_depth: bool = True
+    return_stats: bool = False
+    backend: str = "auto"
+
+
 @dataclass
 class _Rendered:
     """``_render`` output for ``G`` groups."""
@@ -201,26 +213,22 @@ def frame_colors(frame: GaussianFrame, camera: Camera, sh_degree: int | None = N
 def _render(
     frame: GaussianFrame,
     camera: Camera,
+    options: _Options,
     *,
     groups: Tensor | None = None,  # [N] int64 in [0, num_groups)
     num_groups: int = 1,
     backgrounds: Tensor | None = None,  # [G, C], checked
     extra: Tensor | None = None,  # [N, E], checked
-    sh_degree: int | None = None,
-    antialiased: bool = False,
-    eps2d: float | None = None,
-    return_depth: bool = True,
-    return_stats: bool = False,
-    backend: str = "auto",
 ) -> _Rendered:
     """Colours -> projection -> one composite for ``num_groups`` groups -> depth -> background."""
-    backend = _resolve_backend(backend, frame.means)
-    colors = frame_colors(frame, camera, sh_degree)
+    backend = _resolve_backend(options.backend, frame.means)
+    colors = frame_colors(frame, camera, options.sh_degree)
     parts = [colors] + ([extra] if extra is not None else [])
-    if return_depth:
+    if options.return_depth:
         parts.append(camera_points(frame.means, camera)[:, 2:])
+    eps2d = options.eps2d
     if eps2d is None:
-        eps2d = DILATION_ANTIALIASED if antialiased else BLUR_3DGS
+        eps2d = DILATION_ANTIALIASED if options.antialiased else BLUR_3DGS
     image, alpha, radii, means2d, contrib = _rasterizer(backend)(
         frame.means,
         covariance_3d(frame.quats, frame.scales),
@@ -230,8 +238,8 @@ def _render(
         groups=groups,
         num_groups=num_groups,
         eps2d=eps2d,
-        antialiased=antialiased,
-        with_contrib=return_stats,
+        antialiased=options.antialiased,
+        with_contrib=options.return_stats,
     )
 
     c = colors.shape[1]
@@ -240,14 +248,14 @@ def _render(
         images = images + (1.0 - alpha)[..., None] * backgrounds[:, None, None, :]
     extras = image[..., c : c + extra.shape[1]] if extra is not None else None
     depths = None
-    if return_depth:
+    if options.return_depth:
         covered = alpha > 0
         depths = torch.where(
             covered, image[..., -1] / torch.where(covered, alpha, torch.ones_like(alpha)), 0.0
         )
 
     info: dict[str, Any] = {"backend": backend}
-    if return_stats:
+    if options.return_stats:
         if means2d.requires_grad and not means2d.is_leaf:
             means2d.retain_grad()
         info.update(radii=radii, visible=radii > 0, contrib=contrib, means2d=means2d)
@@ -287,16 +295,7 @@ def rasterize(
     backgrounds = None
     if background is not None:
         backgrounds = _check_tensor("background", background, (frame.num_channels,), frame.means)[None]
-    out = _render(
-        frame,
-        camera,
-        backgrounds=backgrounds,
-        sh_degree=sh_degree,
-        antialiased=antialiased,
-        eps2d=eps2d,
-        return_depth=return_depth,
-        return_stats=return_stats,
-        backend=backend,
-    )
+    options = _Options(sh_degree, antialiased, eps2d, return_depth, return_stats, backend)
+    out = _render(frame, camera, options, backgrounds=backgrounds)
     depth = out.depths[0] if out.depths is not None else None
     return RenderOutput(image=out.images[0], alpha=out.alphas[0], depth=depth, info=out.info)
