@@ -30,7 +30,7 @@ from moegs.io import save_checkpoint, to_dict, write_json
 from moegs.io.config import config_changes
 from moegs.moe.config import RouterConfig
 from moegs.moe.model import ROUTER_CHECKPOINT, MoEGS, _check_experts, read_router, winner_shares
-from moegs.train.evaluate import eval_views, mean_scores, score_image
+from moegs.train.evaluate import eval_views, evaluate_renderer
 from moegs.train.losses import photometric
 from moegs.train.optim import Optimizers
 from moegs.train.params import ParamGroup
@@ -59,36 +59,27 @@ def router_param_groups(model: MoEGS) -> list[ParamGroup]:
 
 @torch.no_grad()
 def evaluate_moe(model: MoEGS, views: Sequence[View], background, profile: str = "moegs") -> dict[str, Any]:
-    """Metrics of the blend and of every expert on ``views`` (one render per view; full image and the
-    dynamic / static regions, ``moegs.train.evaluate``), and the share of pixels each expert wins.
+    """``evaluate_renderer`` of the blend, with every expert's image of the same render as a component,
+    and the share of pixels each expert wins.
 
     Returns:
-        ``{**KEYS, "lpips_unavailable", "num_views", "per_view", "experts": [{"name", **KEYS}],
-        "winner_share": [K floats]}``.
+        ``evaluate_renderer``'s dict without ``components``, plus ``"experts": [{"name", **KEYS}]`` and
+        ``"winner_share": [K floats]``.
     """
     if not views:
         raise ValueError("evaluate_moe needs at least one view")
-    per_view, per_expert, shares, unavailable = [], [[] for _ in model.experts], [], None
-    for view in views:
-        out = model.render(view.camera, background)
-        target, mask = view.image(), view.mask()
-        scores = score_image(out.image, target, mask, profile)
-        unavailable = scores.pop("lpips_unavailable")
-        scores.pop("profile")
-        per_view.append({"key": view.key, "time": view.camera.time, **scores})
-        for k, image in enumerate(out.expert_images):
-            per_expert[k].append(score_image(image, target, mask, profile))
+    shares = []
+
+    def render(camera):
+        out = model.render(camera, background)
         shares.append(winner_shares(out.gates))
-    return {
-        **mean_scores(per_view),
-        "lpips_unavailable": unavailable,
-        "num_views": len(views),
-        "per_view": per_view,
-        "experts": [
-            {"name": e.name, **mean_scores(rows)} for e, rows in zip(model.experts, per_expert, strict=True)
-        ],
-        "winner_share": torch.tensor(shares).mean(0).tolist(),
-    }
+        return out.image, {str(k): image for k, image in enumerate(out.expert_images)}
+
+    scores = evaluate_renderer(render, views, profile)
+    components = scores.pop("components")
+    scores["experts"] = [{"name": e.name, **components[str(k)]} for k, e in enumerate(model.experts)]
+    scores["winner_share"] = torch.tensor(shares).mean(0).tolist()
+    return scores
 
 
 def _state(model: MoEGS, step: int, optimizers: Optimizers, sampler: ViewSampler, history: list[float]):

@@ -109,25 +109,35 @@ class RegionErrors:
         return out
 
 
+Rendered = Tensor | tuple[Tensor, dict[str, Tensor]]
+"""What a renderer under evaluation returns: an image ``[H, W, 3]``, or the image and named component
+images (e.g. each expert of a mixture), scored against the same target and masks."""
+
+
 @torch.no_grad()
 def evaluate_renderer(
-    render: Callable[[Camera], Tensor], views: Sequence[View], profile: str = "moegs", regions: bool = True
+    render: Callable[[Camera], Rendered], views: Sequence[View], profile: str = "moegs", regions: bool = True
 ) -> dict[str, Any]:
-    """Mean ``KEYS`` of ``render(camera) -> [H, W, 3]`` over ``views`` and the per-view values.
+    """Mean ``KEYS`` of ``render(camera)`` (see ``Rendered``) over ``views`` and the per-view values.
 
     Returns:
         ``{**KEYS, "motion_r2", "psnr_regions", "lpips_unavailable", "profile", "num_views", "region_masks",
-        "per_view": [{"key", "time", **KEYS}]}``; ``motion_r2`` is the temporal R² of the dynamic region
-        (``moegs.metrics.motion``; None without a camera seen at several times with masks);
-        ``psnr_regions`` the pooled PSNR of each named region (empty without ``View.regions``);
-        ``region_masks`` says whether any view had a mask.
+        "per_view": [{"key", "time", **KEYS}], "components": {name: mean KEYS}}``; ``motion_r2`` is the
+        temporal R² of the dynamic region (``moegs.metrics.motion``; None without a camera seen at several
+        times with masks); ``psnr_regions`` the pooled PSNR of each named region (empty without
+        ``View.regions``); ``region_masks`` says whether any view had a mask; ``components`` is empty when
+        ``render`` returns images only.
     """
     if not views:
         raise ValueError("evaluate_renderer needs at least one view")
     per_view, unavailable, prof, motion, pooled = [], None, None, MotionCapture(), RegionErrors()
+    components: dict[str, list[dict[str, Any]]] = {}
     for view in views:
-        image, target, mask = render(view.camera), view.image(), view.mask() if regions else None
+        image, parts = _split(render(view.camera))
+        target, mask = view.image(), view.mask() if regions else None
         scores = score_image(image, target, mask, profile)
+        for name, part in parts.items():
+            components.setdefault(name, []).append(score_image(part, target, mask, profile))
         if mask is not None:
             motion.add(view.camera, image, target, mask)
         if regions:
@@ -143,7 +153,12 @@ def evaluate_renderer(
         "num_views": len(views),
         "region_masks": any("psnr_dynamic" in r for r in per_view),
         "per_view": per_view,
+        "components": {name: mean_scores(rows) for name, rows in components.items()},
     }
+
+
+def _split(rendered: Rendered) -> tuple[Tensor, dict[str, Tensor]]:
+    return rendered if isinstance(rendered, tuple) else (rendered, {})
 
 
 def evaluate(

@@ -57,3 +57,26 @@ def test_evaluation_reports_the_regions_of_its_views():
     assert scores["psnr_regions"]["left"] == pytest.approx(120.0)  # error 0: the 1e-12 floor
     assert scores["psnr_regions"]["right"] == pytest.approx(20.0, abs=1e-4)
     assert evaluate_renderer(render, views, regions=False)["psnr_regions"] == {}
+
+
+def test_component_images_are_scored_like_the_image():
+    """A renderer may return named component images (a mixture's experts): each is scored against the same
+    targets and masks as the main image, exactly as if it were rendered alone."""
+    g = torch.Generator().manual_seed(1)
+    targets = [torch.rand(32, 40, 3, generator=g) for _ in range(3)]
+    views = [_view(f"v{i}", t, {}, i / 2) for i, t in enumerate(targets)]
+    noisy = {
+        round(v.camera.time * 2): (t + 0.05 * torch.rand(t.shape, generator=g)).clamp(0, 1)
+        for v, t in zip(views, targets, strict=True)
+    }
+
+    def part(camera):
+        return noisy[round(camera.time * 2)]
+
+    mixed = evaluate_renderer(lambda cam: (targets[round(cam.time * 2)], {"expert": part(cam)}), views)
+    alone = evaluate_renderer(part, views)
+    assert set(mixed["components"]) == {"expert"}
+    assert mixed["components"]["expert"]["psnr"] == alone["psnr"]
+    assert mixed["components"]["expert"]["ssim"] == alone["ssim"]
+    assert mixed["psnr"] > alone["psnr"] + 20  # the main image is the exact target
+    assert alone["components"] == {}
