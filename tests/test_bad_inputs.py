@@ -8,6 +8,7 @@ rasterizer's inputs. Each case asserts the message itself, not only that somethi
 
 from __future__ import annotations
 
+import importlib
 import json
 import math
 import re
@@ -242,16 +243,6 @@ DNERF = {
 }  # fmt: skip
 
 
-@pytest.mark.parametrize("case", sorted(DNERF))
-def test_dnerf_json_fields_are_checked(case, tmp_path):
-    from moegs.data.dnerf import load_dnerf
-
-    change, error, message = DNERF[case]
-    root, path = _dnerf(tmp_path, change)
-    text = _error_text(lambda: load_dnerf(root), error)
-    assert text.startswith(message.format(path=path)), text
-
-
 def test_dnerf_file_errors_name_the_file(tmp_path):
     from moegs.data.dnerf import load_dnerf
 
@@ -265,10 +256,6 @@ def test_dnerf_file_errors_name_the_file(tmp_path):
     (root / "transforms_train.json").unlink()
     with pytest.raises(FileNotFoundError, match=re.escape(f"D-NeRF scene: expected {path}")):
         load_dnerf(root)
-
-
-def _panoptic_meta(tmp_path: Path, change) -> tuple[Path, Path]:
-    return _edited(tmp_path, lambda root: fx.write_panoptic(root, frames=2), "train_meta.json", change)
 
 
 def _zero_focal(d):
@@ -288,42 +275,46 @@ PANOPTIC = {
 }  # fmt: skip
 
 
-@pytest.mark.parametrize("case", sorted(PANOPTIC))
-def test_panoptic_meta_is_checked(case, tmp_path):
-    from moegs.data.panoptic import load_panoptic
-
-    change, error, message = PANOPTIC[case]
-    root, path = _panoptic_meta(tmp_path, change)
-    text = _error_text(lambda: load_panoptic(root), error)
-    assert text == message.format(path=path), text
-
-
-def _hypernerf_camera(tmp_path: Path, field: str, value) -> tuple[Path, Path]:
-    change = (lambda d: d.pop(field)) if value is KeyError else (lambda d: d.__setitem__(field, value))
-    return _edited(tmp_path, fx.write_hypernerf, "camera/0_00000.json", change)
+def _camera_field(field: str, value):
+    """Sets ``field`` of a HyperNeRF camera file, or removes it when ``value`` is ``KeyError``."""
+    return (lambda d: d.pop(field)) if value is KeyError else _set(field, value)
 
 
 HYPERNERF = {
-    "focal a string": ("focal_length", "long", TypeError, "{path}: 'focal_length' must be a finite number, got 'long'"),
-    "focal zero": ("focal_length", 0.0, ValueError, "{path}: Camera '0_00000' needs positive focal lengths, got fx=0.0, fy=0.0"),
-    "focal missing": ("focal_length", KeyError, KeyError, "{path}: missing key 'focal_length'"),
-    "orientation 2x2": ("orientation", [[1, 0], [0, 1]], ValueError, "{path}: 'orientation' must be 3x3, got [2, 2]"),
-    "position text": ("position", "origin", TypeError, "{path}: 'position' must be a 3 array of numbers"),
-    "image_size of 3": ("image_size", [64, 40, 3], ValueError, "{path}: 'image_size' must be 2, got [3]"),
-    "aspect ratio text": ("pixel_aspect_ratio", "square", TypeError, "{path}: 'pixel_aspect_ratio' must be a finite number, got 'square'"),
-    "distortion text": ("radial_distortion", "none", TypeError, "{path}: 'radial_distortion' must be a list of numbers, got 'none'"),
-    "skew null": ("skew", None, TypeError, "{path}: 'skew' must be a finite number, got None"),
+    "focal a string": (_camera_field("focal_length", "long"), TypeError, "{path}: 'focal_length' must be a finite number, got 'long'"),
+    "focal zero": (_camera_field("focal_length", 0.0), ValueError, "{path}: Camera '0_00000' needs positive focal lengths, got fx=0.0, fy=0.0"),
+    "focal missing": (_camera_field("focal_length", KeyError), KeyError, "{path}: missing key 'focal_length' (found ['image_size', 'orientation', 'pixel_aspect_ratio', 'position', 'principal_point', 'radial_distortion', 'skew', 'tangential_distortion'])"),
+    "orientation 2x2": (_camera_field("orientation", [[1, 0], [0, 1]]), ValueError, "{path}: 'orientation' must be 3x3, got [2, 2]"),
+    "position text": (_camera_field("position", "origin"), TypeError, "{path}: 'position' must be a 3 array of numbers"),
+    "image_size of 3": (_camera_field("image_size", [64, 40, 3]), ValueError, "{path}: 'image_size' must be 2, got [3]"),
+    "aspect ratio text": (_camera_field("pixel_aspect_ratio", "square"), TypeError, "{path}: 'pixel_aspect_ratio' must be a finite number, got 'square'"),
+    "distortion text": (_camera_field("radial_distortion", "none"), TypeError, "{path}: 'radial_distortion' must be a list of numbers, got 'none'"),
+    "skew null": (_camera_field("skew", None), TypeError, "{path}: 'skew' must be a finite number, got None"),
 }  # fmt: skip
 
 
-@pytest.mark.parametrize("case", sorted(HYPERNERF))
-def test_hypernerf_camera_fields_are_checked(case, tmp_path):
-    from moegs.data.hypernerf import load_hypernerf
+LOADER_FILES = {  # dataset: (module:loader in moegs.data, writes the fixture scene, the JSON file a case edits, the cases)
+    "dnerf": ("dnerf:load_dnerf", fx.write_dnerf, "transforms_train.json", DNERF),
+    "panoptic": (
+        "panoptic:load_panoptic",
+        lambda root: fx.write_panoptic(root, frames=2),
+        "train_meta.json",
+        PANOPTIC,
+    ),
+    "hypernerf": ("hypernerf:load_hypernerf", fx.write_hypernerf, "camera/0_00000.json", HYPERNERF),
+}
+LOADER_CASES = [(dataset, case) for dataset, files in LOADER_FILES.items() for case in sorted(files[3])]
 
-    field, value, error, message = HYPERNERF[case]
-    root, path = _hypernerf_camera(tmp_path, field, value)
-    text = _error_text(lambda: load_hypernerf(root), error)
-    assert text.startswith(message.format(path=path)), text
+
+@pytest.mark.parametrize(("dataset", "case"), LOADER_CASES, ids=[f"{d}: {c}" for d, c in LOADER_CASES])
+def test_loader_json_fields_are_checked(dataset, case, tmp_path):
+    loader, write, name, cases = LOADER_FILES[dataset]
+    module, function = loader.split(":")
+    load = getattr(importlib.import_module(f"moegs.data.{module}"), function)
+    change, error, message = cases[case]
+    root, path = _edited(tmp_path, write, name, change)
+    text = _error_text(lambda: load(root), error)
+    assert text == message.format(path=path), text
 
 
 # -- 4. checkpoint files ----------------------------------------------------------------------------
