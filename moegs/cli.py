@@ -98,7 +98,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
     from moegs.data import load_scene
     from moegs.recipes import config_for
-    from moegs.train.entry import train_recipe
+    from moegs.train.entry import finished_run, train_recipe
 
     overrides = parse_overrides(args.set or [])
     overrides["train.seed"] = args.seed
@@ -115,7 +115,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     out = Path(
         args.out or Path("runs") / f"{args.expert}_{args.scene.replace(':', '_')}_{args.preset}_s{args.seed}"
     )
-    finished = _finished_run(out)
+    finished = finished_run(out)
     if finished is not None and not args.force:
         print(
             f"{out} holds a finished run (test PSNR {finished['test']['psnr']:.2f}); left as it is "
@@ -135,18 +135,6 @@ def _cmd_train(args: argparse.Namespace) -> int:
         f"SSIM {test.get('ssim', float('nan')):.4f} -> {out}"
     )
     return 0
-
-
-def _finished_run(out: Path) -> dict | None:
-    """The ``metrics.json`` of a completed run in ``out``, or None."""
-    path = out / "metrics.json"
-    if not path.is_file():
-        return None
-    try:
-        result = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{path} is not valid JSON ({err}); remove it or pass --force") from err
-    return result if result.get("completed") and result.get("test") else None
 
 
 def _cmd_recipe(args: argparse.Namespace) -> int:

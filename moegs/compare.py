@@ -32,21 +32,15 @@ WINDOWED_DATASETS = ("panoptic", "n3v", "technicolor")
 COLUMNS = ("expert", "psnr", "ssim", "lpips", "train_seconds", "num_gaussians", "iterations")
 
 
-def _frames(scene: str, preset: str, frames: tuple[int, int] | None) -> tuple[int, int] | None:
+def preset_frames(scene: str, preset: str, frames: tuple[int, int] | None) -> tuple[int, int] | None:
+    """The frame window of a run: ``frames`` (only on datasets that have windows), else the quick preset's
+    ``QUICK_FRAMES`` on those datasets, else None (the loader's default)."""
     dataset = scene.split(":", 1)[0].lower()
     if frames is not None and dataset not in WINDOWED_DATASETS:
         raise ValueError(f"--frames applies to {', '.join(WINDOWED_DATASETS)} scenes, not {scene!r}")
     if frames is None and preset == "quick" and dataset in WINDOWED_DATASETS:
         return QUICK_FRAMES
     return frames
-
-
-def _finished(path: Path) -> dict | None:
-    """The loop's ``metrics.json`` of a completed run, or None."""
-    if not path.is_file():
-        return None
-    result = json.loads(path.read_text())
-    return result if result.get("completed") and result.get("test") else None
 
 
 def scene_kwargs(recipe, frames: tuple[int, int] | None) -> dict[str, Any]:
@@ -139,18 +133,19 @@ def compare(
     """
     from moegs.experts import get_spec, list_experts
     from moegs.io import write_json
+    from moegs.train.entry import finished_run
 
     names = [s.name for s in list_experts() if not s.composite] if experts == ["all"] else experts
     if not names:
         raise ValueError("--experts: expected comma-separated registry names or 'all', got none")
     for name in names:
         get_spec(name)  # unknown names fail before any training
-    window = _frames(scene, preset, frames)
+    window = preset_frames(scene, preset, frames)
     out = Path(out) if out is not None else Path("runs") / f"compare_{scene.replace(':', '_')}_{preset}"
     rows, skipped, scenes = [], [], {}
     for name in names:
         run_dir = out / name
-        result = _finished(run_dir / "metrics.json")
+        result = finished_run(run_dir)
         if result is None:
             result = run_expert(name, scene, preset, run_dir, window, scenes, progress)
         else:

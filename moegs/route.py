@@ -52,10 +52,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress: bool):
     """Train (or reuse) each expert with its recipe; returns ``(experts, scene)``: the scene loaded as the
     first expert's recipe loads it (experts on RGBA datasets must agree on the background)."""
-    from moegs.compare import _finished, _frames, run_expert, scene_kwargs
+    from moegs.compare import preset_frames, run_expert, scene_kwargs
     from moegs.data import load_scene
     from moegs.recipes import config_for
     from moegs.train.checkpoint import load_expert
+    from moegs.train.entry import finished_run
 
     recipes = [config_for(n, scene_name, preset) for n in names]
     scales = {r.config.train.resolution_scale for r in recipes}
@@ -71,10 +72,10 @@ def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress
             f"experts {names} train on different backgrounds ({which}) and {scene_name}'s RGBA images are "
             "composited on the background; route experts that agree"
         )
-    frames = _frames(scene_name, preset, None)
+    frames = preset_frames(scene_name, preset, None)
     scenes: dict = {}
     for name in names:
-        if _finished(out / name / "metrics.json") is None:  # a finished expert run is reused as it is
+        if finished_run(out / name) is None:  # a finished expert run is reused as it is
             run_expert(name, scene_name, preset, out / name, frames, scenes, progress)
     scene = load_scene(scene_name, **scene_kwargs(recipes[0], frames))
     return [load_expert(out / name, scene)[0] for name in names], scene

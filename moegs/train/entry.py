@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,19 @@ def build_expert(recipe: Recipe, scene: Scene) -> Expert:
     the run's seed first, so network initialisation does not depend on what ran before."""
     torch.manual_seed(recipe.config.train.seed)
     return get_expert_class(recipe.expert).from_scene(scene, recipe.config)
+
+
+def finished_run(out_dir: str | Path) -> dict[str, Any] | None:
+    """The loop's ``metrics.json`` in ``out_dir`` when that run completed and was evaluated, else None (an
+    interrupted run is resumed from its checkpoint by training into the same folder)."""
+    path = Path(out_dir) / "metrics.json"
+    if not path.is_file():
+        return None
+    try:
+        result = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path} is not valid JSON ({err}); remove it or pass --force") from err
+    return result if result.get("completed") and result.get("test") else None
 
 
 def train_recipe(
