@@ -219,3 +219,21 @@ def test_route_ctrl_c_and_kill_9_resume_to_the_same_result(route_experts, tmp_pa
     rerun = subprocess.run(_route_cmd(reference, 50), capture_output=True, text=True, env=env, timeout=600)
     assert rerun.returncode == 0 and "holds a finished router run" in rerun.stdout
     assert _router_metrics(reference) == finished  # left alone
+
+
+def test_finished_run_is_a_completed_and_evaluated_run(tmp_path):
+    """The one check ``moegs train``, ``compare`` and ``route`` use before training into a folder."""
+    import json
+
+    from moegs.train.entry import finished_run
+
+    metrics = tmp_path / "metrics.json"
+    assert finished_run(tmp_path) is None  # nothing there yet
+    for partial in ({"completed": False, "test": {"psnr": 20.0}}, {"completed": True, "test": None}):
+        metrics.write_text(json.dumps(partial))
+        assert finished_run(tmp_path) is None  # interrupted, or stopped before its evaluation
+    metrics.write_text(json.dumps({"completed": True, "test": {"psnr": 20.0}}))
+    assert finished_run(tmp_path)["test"]["psnr"] == 20.0
+    metrics.write_text("{cut")
+    with pytest.raises(ValueError, match=f"{metrics} is not valid JSON .*; remove it or pass --force"):
+        finished_run(tmp_path)
