@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Any
 
-QUICK_ITERATIONS = 600  # moegs.experts.static.QUICK_ITERATIONS (checked by tests)
+QUICK_ITERATIONS = 600  # moegs.experts.base.QUICK_ITERATIONS without importing torch (checked by tests)
 ADC_WINDOW = ("strategy.densify_from", "strategy.densify_until", "strategy.reset_every")
 SH_BANDS = "train.sh_degree_interval"  # the steps at which SH bands 1, 2, 3 switch on
 SCHEDULE_FIELDS: dict[str, tuple[str, ...]] = {

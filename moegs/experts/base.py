@@ -60,6 +60,7 @@ def splat_param_groups(
 
 # quick presets: the static baseline's 30k -> 600 (50x shorter), shared by every expert
 QUICK_ITERATIONS = 600
+QUICK_RESOLUTION = 0.125  # D-NeRF 800x800 -> 100x100, so a run takes about a minute on 2 cores
 
 
 def quick_step(step: int, iterations: int) -> int:
@@ -168,9 +169,11 @@ class ExpertConfig(Presets):
 
     @classmethod
     def quick_reductions(cls, paper: Self) -> dict[str, Any]:
-        """Every field in which ``quick`` differs from ``paper``: the expert's ``quick_fields`` and the rule
-        all experts share, the SH-band interval at the same fraction of the run (``quick_sh_interval``)."""
-        return {**cls.quick_fields(paper), "train.sh_degree_interval": quick_sh_interval(paper)}
+        """Every field in which ``quick`` differs from ``paper``: what every expert shares
+        (``QUICK_ITERATIONS`` steps at ``QUICK_RESOLUTION``, the SH-band interval at the same fraction of
+        the run) and the expert's own ``quick_fields``."""
+        shared = {"train.iterations": QUICK_ITERATIONS, "train.resolution_scale": QUICK_RESOLUTION}
+        return {**shared, **cls.quick_fields(paper), "train.sh_degree_interval": quick_sh_interval(paper)}
 
     @classmethod
     def quick(cls) -> Self:

@@ -31,7 +31,7 @@ from moegs.data.scene import Scene
 from moegs.experts.base import QUICK_ITERATIONS, DatasetPreset
 from moegs.experts.canonical import QUICK_STATIC_ITERATIONS, DeformingExpert
 from moegs.experts.gaussian_params import activate
-from moegs.experts.static import QUICK_DENSIFY, QUICK_POINTS, QUICK_RESOLUTION, StaticConfig
+from moegs.experts.static import QUICK_DENSIFY, QUICK_POINTS, StaticConfig
 from moegs.fields import Heads, PositionalEncoding, SkipMLP, mlp
 from moegs.gaussians import GaussianFrame
 from moegs.train.config import TrainConfig
@@ -175,8 +175,6 @@ class DeformableConfig(StaticConfig):
             "means_lr_max_steps": QUICK_ITERATIONS,  # the canonical xyz decay spans the short run
             # deform_lr_max_steps stays 40k: a 600-step decay starves the MLP (measured 22.3 vs 26.7 dB)
             **QUICK_DENSIFY,
-            "train.iterations": QUICK_ITERATIONS,
-            "train.resolution_scale": QUICK_RESOLUTION,
         }
 
 

@@ -44,7 +44,7 @@ from moegs.experts.base import (
     splat_param_groups,
 )
 from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats, num_sh_bases
-from moegs.experts.static import QUICK_POINTS, QUICK_RESOLUTION, scene_points, thin_points
+from moegs.experts.static import QUICK_POINTS, scene_points, thin_points
 from moegs.fields.mlp import Heads, mlp
 from moegs.gaussians import GaussianFrame
 from moegs.render import RenderOutput
@@ -445,9 +445,7 @@ class ED3DGSConfig(ExpertConfig):
             "strategy.densify_from": at(paper.strategy.densify_from),
             "strategy.densify_until": int(QUICK_ITERATIONS * 0.75),  # the last densified Gaussians train
             "strategy.densify_every": 100,  # the original interval (see static.QUICK_DENSIFY)
-            "train.iterations": QUICK_ITERATIONS,
             "train.batch_size": 1,  # N3V / HyperNeRF batch 2 (4) -> 1 (CPU cost; one view per step)
-            "train.resolution_scale": QUICK_RESOLUTION,
         }
 
 

@@ -43,7 +43,7 @@ from moegs.experts.base import (
     splat_param_groups,
 )
 from moegs.experts.gaussian_params import active_sh_degree, init_splats, sh_coeffs
-from moegs.experts.static import QUICK_POINTS, QUICK_RESOLUTION, scene_points, thin_points
+from moegs.experts.static import QUICK_POINTS, scene_points, thin_points
 from moegs.gaussians import GaussianFrame
 from moegs.metrics.ssim import ssim_map
 from moegs.render import RenderOutput, rasterize
@@ -324,8 +324,6 @@ class Ex4DGSConfig(ExpertConfig):
             "strategy.prune_every": 150,
             # no small-radius pruning: 5 px at N3V's 1352x1014 is below one pixel at the quick resolution
             "strategy.small_radius": 0.0,
-            "train.iterations": QUICK_ITERATIONS,
-            "train.resolution_scale": QUICK_RESOLUTION,
         }
 
 

@@ -33,7 +33,7 @@ from moegs.data.scene import Scene
 from moegs.experts.base import QUICK_ITERATIONS, DatasetPreset
 from moegs.experts.canonical import QUICK_STATIC_ITERATIONS, DeformingExpert
 from moegs.experts.gaussian_params import activate, num_sh_bases, sh_coeffs
-from moegs.experts.static import QUICK_POINTS, QUICK_RESOLUTION, StaticConfig
+from moegs.experts.static import QUICK_POINTS, StaticConfig
 from moegs.fields import Heads, HexPlane, mlp, xavier_weights_
 from moegs.gaussians import GaussianFrame
 from moegs.train.config import TrainConfig
@@ -296,9 +296,7 @@ class FourDGSConfig(StaticConfig):
             "strategy.reset_every": 300 if paper.strategy.reset_every < paper.train.iterations else NEVER,
             "strategy.prune_from": 100,
             "strategy.prune_every": 400,
-            "train.iterations": QUICK_ITERATIONS,
             "train.batch_size": 1,  # N3V / HyperNeRF batch 2 (4) -> 1 (CPU cost; one view per step)
-            "train.resolution_scale": QUICK_RESOLUTION,
         }
 
     def __post_init__(self) -> None:

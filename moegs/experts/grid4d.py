@@ -32,7 +32,7 @@ from moegs.data.scene import Scene
 from moegs.experts.base import QUICK_ITERATIONS, DatasetPreset
 from moegs.experts.canonical import QUICK_STATIC_ITERATIONS, DeformingExpert
 from moegs.experts.gaussian_params import activate
-from moegs.experts.static import QUICK_DENSIFY, QUICK_POINTS, QUICK_RESOLUTION, StaticConfig
+from moegs.experts.static import QUICK_DENSIFY, QUICK_POINTS, StaticConfig
 from moegs.fields import DecomposedHashGrid4D, Heads, mlp
 from moegs.gaussians import GaussianFrame
 from moegs.render.projection import quat_to_rotmat
@@ -301,8 +301,6 @@ class Grid4DConfig(StaticConfig):
             "means_lr_max_steps": QUICK_ITERATIONS,  # the canonical xyz decay spans the short run
             # deform_lr_max_steps stays: a 600-step decay starves grid and MLP (measured 22.7 vs 28.2 dB)
             **QUICK_DENSIFY,
-            "train.iterations": QUICK_ITERATIONS,
-            "train.resolution_scale": QUICK_RESOLUTION,
         }
 
 

@@ -25,7 +25,7 @@ from moegs.camera import Camera
 from moegs.data.scene import PointCloud, Scene, View
 from moegs.experts.base import QUICK_ITERATIONS
 from moegs.experts.gaussian_params import activate, init_splats
-from moegs.experts.static import QUICK_RESOLUTION, StaticConfig, StaticExpert, scene_points, thin_points
+from moegs.experts.static import StaticConfig, StaticExpert, scene_points, thin_points
 from moegs.gaussians import GaussianFrame
 from moegs.train.strategy import MCMCStrategy, Strategy
 
@@ -59,8 +59,6 @@ class MCMCConfig(StaticConfig):
             "strategy.refine_from": 50,
             "strategy.refine_until": 500,
             "strategy.refine_every": 25,
-            "train.iterations": QUICK_ITERATIONS,
-            "train.resolution_scale": QUICK_RESOLUTION,
         }
 
 

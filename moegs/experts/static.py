@@ -21,7 +21,6 @@ from moegs.train.config import TrainConfig
 from moegs.train.params import ParamGroup
 from moegs.train.strategy import ADCStrategy, Strategy
 
-QUICK_RESOLUTION = 0.125  # quick presets: D-NeRF 800x800 -> 100x100 so a run takes about a minute on 2 cores
 QUICK_POINTS = (
     5000  # quick presets: at most 5k initial points (D-NeRF's 100k random points; CPU rasterizer cost)
 )
@@ -84,8 +83,6 @@ class StaticConfig(ExpertConfig):
             "max_init_points": QUICK_POINTS,
             "means_lr_max_steps": QUICK_ITERATIONS,  # decay over the whole short run, as 3DGS over 30k
             **QUICK_DENSIFY,
-            "train.iterations": QUICK_ITERATIONS,
-            "train.resolution_scale": QUICK_RESOLUTION,
         }
 
 

@@ -51,7 +51,7 @@ from moegs.experts.base import (
     splat_param_groups,
 )
 from moegs.experts.gaussian_params import activate, active_sh_degree, init_splats
-from moegs.experts.static import QUICK_POINTS, QUICK_RESOLUTION, scene_points, thin_points
+from moegs.experts.static import QUICK_POINTS, scene_points, thin_points
 from moegs.experts.stg_decoder import FeatureDecoder
 from moegs.gaussians import GaussianFrame
 from moegs.render import RenderOutput
@@ -240,8 +240,6 @@ class STGConfig(ExpertConfig):
             "strategy.bbox_prune_at": at(s.bbox_prune_at),
             "strategy.guided_from": at(s.guided_from),
             "strategy.guided_gap": at(s.guided_gap),
-            "train.iterations": QUICK_ITERATIONS,
-            "train.resolution_scale": QUICK_RESOLUTION,
         }
 
 

@@ -34,7 +34,6 @@ from moegs.camera import Camera
 from moegs.data.scene import Scene, View
 from moegs.experts import get_expert_class
 from moegs.experts.base import QUICK_ITERATIONS, DatasetPreset, Expert, ExpertConfig
-from moegs.experts.static import QUICK_RESOLUTION
 from moegs.gaussians import GaussianFrame
 from moegs.mode.gating import top_k_gates, warmup_scores, weight_spline
 from moegs.train.params import ParamGroup
@@ -135,9 +134,7 @@ class MoDEConfig(ExpertConfig):
             "member_preset": "quick",
             "warmup_iterations": 100,  # 3000 of 30000 fine steps -> 100 of 450
             "gate_lr_max_steps": QUICK_ITERATIONS,  # the decay spans the short run
-            "train.iterations": QUICK_ITERATIONS,
             "train.batch_size": 1,  # batch 4 -> 1 (CPU cost)
-            "train.resolution_scale": QUICK_RESOLUTION,
         }
 
 
