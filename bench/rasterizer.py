@@ -232,13 +232,19 @@ def main(argv: list[str] | None = None) -> int:
         help="build the table from this saved pytest-benchmark JSON (cuda: repeat for later runs, whose "
         "speed-ups get a column each)",
     )
-    p.add_argument("--out", type=Path, default=REPO / "runs" / "rasterizer", help="output folder")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=Path("runs") / "rasterizer",
+        help="output folder (default under the working directory)",
+    )
     p.add_argument("--readme", type=Path, help="rewrite this README's results:rasterizer(-cuda) section")
     p.add_argument(
         "--backend", choices=["cpu", "cuda"], default="cpu", help="cuda: only the gsplat cases (needs a GPU)"
     )
     args = p.parse_args(argv)
-    out = args.out if args.backend == "cpu" else args.out.with_name(f"{args.out.name}-cuda")
+    out = args.out.resolve()  # the suite runs from the repository, the folder is the caller's
+    out = out if args.backend == "cpu" else out.with_name(f"{out.name}-cuda")
     paths = args.json
     if paths is None:
         paths = [out / "benchmark.json"]
