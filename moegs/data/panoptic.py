@@ -29,6 +29,7 @@ Conventions chosen:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
@@ -130,14 +131,15 @@ def _random_points(cameras: list[Camera], n: int, seed: int, why: str) -> PointC
 
 
 def _fallback_points(
-    native_first: list[View], cameras: list[Camera], n: int, seed: int, init: str
+    native_first: Callable[[], list[View]], cameras: list[Camera], n: int, seed: int, init: str
 ) -> PointCloud:
-    """Points without ``init_pt_cld.npz``: triangulated from ``native_first`` (the window's first time
-    step at native resolution) or random in the shared volume of ``cameras``."""
+    """Points without ``init_pt_cld.npz``: triangulated from ``native_first()`` (the window's first time
+    step at native resolution, built only for this) or random in the shared volume of ``cameras``."""
     if init == "triangulate":
+        views = native_first()
         try:
             return triangulated_points(
-                [v.camera for v in native_first], [v.image() for v in native_first], max_points=n, seed=seed
+                [v.camera for v in views], [v.image() for v in views], max_points=n, seed=seed
             )
         except ValueError as err:
             return _random_points(cameras, n, seed, f"init_pt_cld.npz missing, {err}")
@@ -219,13 +221,9 @@ def load_panoptic(
         points, seg = _npz_points(npz)
         meta["point_seg_fraction"] = float((seg > 0.5).float().mean())
     else:
-        points = None
-        if num_points > 0:
-            start = (window[0], window[0] + 1)
-            native_first = _views(
-                root, train_meta, **{**common, "window": start, "scale": 1.0, "masks": False}
-            )
-            points = _fallback_points(native_first, first, num_points, seed, init)
+        start = {**common, "window": (window[0], window[0] + 1), "scale": 1.0, "masks": False}
+        native_first = partial(_views, root, train_meta, **start)
+        points = _fallback_points(native_first, first, num_points, seed, init) if num_points > 0 else None
     return loaded_scene(
         "panoptic",
         root.name,
