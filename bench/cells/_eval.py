@@ -76,7 +76,6 @@ def evaluate_cell(
         "region_masks": scores.pop("region_masks"),
     }
     regimes = scores.pop("psnr_regions")
-    scores.pop("components")  # a cell renders one image per view
     metrics = {k: v for k, v in scores.items() if v is not None or k in ("psnr", "ssim", "lpips")}
     metrics.update({f"{REGIME_PREFIX}{name}": v for name, v in regimes.items() if v is not None})
     if native is not None:

@@ -16,15 +16,20 @@ Conventions chosen:
 - Background black (Dynamic3DGaussians renders on black; the images keep the real studio background).
 - ``extent``: 1.1 x the largest distance of the training camera centres from their mean (their
   ``scene_radius``, identical to 3DGS ``getNerfppNorm``).
-- Points: ``init_pt_cld.npz`` when present (``PointCloud.source`` says so). Otherwise ``num_points``
-  random points in the camera frusta (``moegs.data.points.random_in_frusta``), kept only where at
-  least half the training cameras see them: the shared capture volume. ``bbox`` comes from the points
-  (1%-99% quantiles).
+- Points: ``init_pt_cld.npz`` when present (``PointCloud.source`` says so). Otherwise (``init``):
+  ``"triangulate"`` (default) SIFT matches of the training cameras' native images at the window's first
+  time step, triangulated with the given calibration (``moegs.data.triangulate``), at most
+  ``num_points`` of them; ``"random"`` ``num_points`` random points in the camera frusta
+  (``moegs.data.points.random_in_frusta``), kept only where at least half the training cameras see
+  them: the shared capture volume, which has no points on the dome's walls. Triangulation that finds
+  nothing (textureless images) falls back to ``"random"`` and the source says why. ``bbox`` comes from
+  the points (1%-99% quantiles).
 - Masks: ``View.load_mask`` reads ``seg/`` when it exists for that camera (any non-zero = foreground).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
@@ -45,6 +50,7 @@ from moegs.data._io import (
     require_file,
 )
 from moegs.data.scene import PointCloud, Scene, View
+from moegs.data.triangulate import triangulated_points
 
 _META_KEYS = ("w", "h", "k", "w2c", "fn", "cam_id")
 
@@ -114,10 +120,30 @@ def _views(
     return views
 
 
-def _fallback_points(cameras: list[Camera], n: int, seed: int) -> PointCloud:
+INITS = ("triangulate", "random")
+"""Initialisations when ``init_pt_cld.npz`` is missing (see the module docstring)."""
+
+
+def _random_points(cameras: list[Camera], n: int, seed: int, why: str) -> PointCloud:
     centers = torch.stack([c.center for c in cameras])
     dist = (centers - centers.mean(0)).norm(dim=-1).median().item()
-    return shared_volume_points(cameras, n, 0.2 * dist, 1.6 * dist, seed, "init_pt_cld.npz missing")
+    return shared_volume_points(cameras, n, 0.2 * dist, 1.6 * dist, seed, why)
+
+
+def _fallback_points(
+    native_first: Callable[[], list[View]], cameras: list[Camera], n: int, seed: int, init: str
+) -> PointCloud:
+    """Points without ``init_pt_cld.npz``: triangulated from ``native_first()`` (the window's first time
+    step at native resolution, built only for this) or random in the shared volume of ``cameras``."""
+    if init == "triangulate":
+        views = native_first()
+        try:
+            return triangulated_points(
+                [v.camera for v in views], [v.image() for v in views], max_points=n, seed=seed
+            )
+        except ValueError as err:
+            return _random_points(cameras, n, seed, f"init_pt_cld.npz missing, {err}")
+    return _random_points(cameras, n, seed, "init_pt_cld.npz missing")
 
 
 def _npz_points(path: Path) -> tuple[PointCloud, Tensor]:
@@ -147,6 +173,7 @@ def load_panoptic(
     masks: bool = True,
     resample: str = "bicubic",
     name: str | None = None,
+    init: str = "triangulate",
 ) -> Scene:
     """Load a Dynamic3DGaussians-layout Panoptic sequence.
 
@@ -157,7 +184,10 @@ def load_panoptic(
         time_mode: ``"global"`` (t / T) or ``"local"`` ((t - start) / (stop - start)).
         num_points: size of the fallback initialisation when ``init_pt_cld.npz`` is missing.
         masks: expose ``seg/`` masks through ``View.load_mask``.
+        init: ``"triangulate"`` or ``"random"``: the points when ``init_pt_cld.npz`` is missing.
     """
+    if init not in INITS:
+        raise ValueError(f"load_panoptic: init must be one of {INITS}, got {init!r}")
     root = Path(root)
     if not (root / "train_meta.json").is_file():
         raise FileNotFoundError(
@@ -191,7 +221,9 @@ def load_panoptic(
         points, seg = _npz_points(npz)
         meta["point_seg_fraction"] = float((seg > 0.5).float().mean())
     else:
-        points = _fallback_points(first, num_points, seed) if num_points > 0 else None
+        start = {**common, "window": (window[0], window[0] + 1), "scale": 1.0, "masks": False}
+        native_first = partial(_views, root, train_meta, **start)
+        points = _fallback_points(native_first, first, num_points, seed, init) if num_points > 0 else None
     return loaded_scene(
         "panoptic",
         root.name,

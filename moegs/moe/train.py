@@ -11,7 +11,7 @@ Per 1-based iteration (one training view per step, shuffled over all cameras and
 Example::
 
     >>> result = train_router([ex4dgs, stg], scene, RouterConfig.from_preset("quick"), "runs/moe")
-    >>> result["test"]["psnr"], [e["psnr"] for e in result["experts_test"]]
+    >>> result["test"]["psnr"], [e["psnr"] for e in result["test"]["experts"]]
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ def finished_run(out_dir: str | Path) -> dict[str, Any] | None:
     try:
         result = json.loads(path.read_text())
     except json.JSONDecodeError as err:
-        raise ValueError(f"{path} is not valid JSON ({err}); remove it or pass --force") from err
+        raise ValueError(f"{path} is not valid JSON ({err}); remove it to run again") from err
     return result if result.get("completed") and result.get("test") else None
 
 

@@ -125,8 +125,8 @@ def evaluate_renderer(
         "per_view": [{"key", "time", **KEYS}], "components": {name: mean KEYS}}``; ``motion_r2`` is the
         temporal R² of the dynamic region (``moegs.metrics.motion``; None without a camera seen at several
         times with masks); ``psnr_regions`` the pooled PSNR of each named region (empty without
-        ``View.regions``); ``region_masks`` says whether any view had a mask; ``components`` is empty when
-        ``render`` returns images only.
+        ``View.regions``); ``region_masks`` says whether any view had a mask; ``components`` is there only
+        when ``render`` returns component images too.
     """
     if not views:
         raise ValueError("evaluate_renderer needs at least one view")
@@ -153,7 +153,11 @@ def evaluate_renderer(
         "num_views": len(views),
         "region_masks": any("psnr_dynamic" in r for r in per_view),
         "per_view": per_view,
-        "components": {name: mean_scores(rows) for name, rows in components.items()},
+        **(
+            {"components": {name: mean_scores(rows) for name, rows in components.items()}}
+            if components
+            else {}
+        ),
     }
 
 

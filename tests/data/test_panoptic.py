@@ -32,8 +32,12 @@ def test_fixture_splits_times_poses_masks(tmp_path):
     assert mask.shape == (18, 32) and mask[:, :16].sum() == 0 and mask[:, 16:].min() == 1
     assert scene.test[0].load_mask is None  # no seg/ for test cameras
     torch.testing.assert_close(scene.background, torch.zeros(3))
+    # one colour per camera image: nothing to triangulate, so the random shared-volume points, and why
     assert "fallback" in scene.points.source and "init_pt_cld.npz missing" in scene.points.source
+    assert "no match between 4 cameras triangulated" in scene.points.source
     assert len(scene.points) == 200
+    random = load_panoptic(tmp_path, num_points=200, init="random")
+    torch.testing.assert_close(random.points.xyz, scene.points.xyz)
 
 
 def test_npz_points_window_local_time_and_scale(tmp_path):
@@ -51,6 +55,8 @@ def test_npz_points_window_local_time_and_scale(tmp_path):
 def test_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="train_meta.json"):
         load_panoptic(tmp_path)
+    with pytest.raises(ValueError, match=r"init must be one of \('triangulate', 'random'\), got 'sfm'"):
+        load_panoptic(tmp_path, init="sfm")
     fx.write_panoptic(tmp_path)
     meta = json.loads((tmp_path / "test_meta.json").read_text())
     del meta["w2c"]
@@ -84,7 +90,7 @@ def _project(cam, x: torch.Tensor) -> tuple[torch.Tensor, float]:
 def test_basketball(basketball_root):
     train_meta = json.loads((basketball_root / "train_meta.json").read_text())
     test_meta = json.loads((basketball_root / "test_meta.json").read_text())
-    scene = load_panoptic(basketball_root, num_points=2000)
+    scene = load_panoptic(basketball_root, num_points=2000, init="random")
     T = len(train_meta["fn"])
     assert scene.num_frames == T == 150
     assert len(scene.train) == T * len(train_meta["cam_id"][0]) == 150 * 27
@@ -121,7 +127,7 @@ def test_basketball(basketball_root):
     for v in scene.test[:4]:
         uv, depth = _project(v.camera, x)
         assert depth > 0 and 0 <= uv[0] < 640 and 0 <= uv[1] < 360, (v.camera.name, uv)
-    # the fallback points lie in the shared volume: most project inside most training images
+    # the random fallback points lie in the shared volume: most project inside most training images
     pts = scene.points.xyz[:500].double()
     seen = torch.zeros(len(pts))
     for v in first:
