@@ -5,9 +5,11 @@ Every training run of a scene decodes, composites and resizes the same images ag
 run stores each result under ``cache_root()/decoded/`` and later runs read it back (well under a
 millisecond). It is exact: the stored float32 array is the loader's own result, written atomically.
 
-Entries are keyed by the source file's resolved path, size and modification time and by every loading
-argument. Only images of at most ``MAX_PIXELS`` pixels are stored (training resolutions of the quick and
-standard presets; full-resolution video frames would fill the disk). ``MOEGS_DECODED_CACHE=0`` turns it
+Entries are keyed by the source files' resolved paths, sizes and modification times and by every
+loading argument. Initial point clouds computed from images (``cached_points``: Panoptic's
+triangulation, 7-10 s per load of basketball) are kept the same way. Only images of at most
+``MAX_PIXELS`` pixels are stored (training resolutions of the quick and standard presets;
+full-resolution video frames would fill the disk). ``MOEGS_DECODED_CACHE=0`` turns it
 off.
 """
 
@@ -16,13 +18,16 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from functools import partial
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from moegs.data.scene import PointCloud
 from moegs.paths import cache_root
 
 MAX_PIXELS = 512 * 512
@@ -32,11 +37,10 @@ def enabled() -> bool:
     return os.environ.get("MOEGS_DECODED_CACHE", "1") != "0"
 
 
-def _entry(kind: str, source: Path, args: tuple) -> Path:
-    stat = source.stat()
-    key = repr((kind, str(source.resolve()), stat.st_size, stat.st_mtime_ns, args))
-    digest = hashlib.sha256(key.encode()).hexdigest()
-    return cache_root() / "decoded" / digest[:2] / f"{digest}.npy"
+def _entry(kind: str, sources: Sequence[Path], args: tuple, suffix: str = ".npy") -> Path:
+    stats = [(str(s.resolve()), s.stat().st_size, s.stat().st_mtime_ns) for s in sources]
+    digest = hashlib.sha256(repr((kind, stats, args)).encode()).hexdigest()
+    return cache_root() / "decoded" / digest[:2] / f"{digest}{suffix}"
 
 
 def _read(path: Path, shape: tuple[int, ...]) -> Tensor | None:
@@ -49,12 +53,13 @@ def _read(path: Path, shape: tuple[int, ...]) -> Tensor | None:
     return torch.from_numpy(arr)
 
 
-def _write(path: Path, value: Tensor) -> None:
+def _write(path: Path, save: Callable[[BinaryIO], None]) -> None:
+    """Atomically write ``path`` with ``save(file)``."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
-            np.save(f, value.numpy())
+            save(f)
         os.replace(tmp, path)
     except OSError:
         Path(tmp).unlink(missing_ok=True)  # a read-only or full cache only costs the speed-up
@@ -68,12 +73,34 @@ def cached(
     if not enabled() or shape[0] * shape[1] > MAX_PIXELS:
         return load()
     try:
-        entry = _entry(kind, source, args)
+        entry = _entry(kind, [source], args)
     except OSError:
         return load()  # a missing source: the loader's own message names it
     value = _read(entry, shape)
     if value is None:
         value = load()
         if value.dtype == torch.float32 and tuple(value.shape) == shape:
-            _write(entry, value.contiguous())
+            _write(entry, partial(np.save, arr=value.contiguous().numpy()))
     return value
+
+
+def cached_points(sources: Sequence[Path], args: tuple, load: Callable[[], PointCloud]) -> PointCloud:
+    """``load()`` (points computed from the files ``sources`` with parameters ``args``), read from the disk
+    cache when an entry exists, else computed and stored. Exceptions of ``load`` propagate uncached."""
+    if not enabled():
+        return load()
+    try:
+        entry = _entry("points", sources, args, ".npz")
+    except OSError:
+        return load()
+    try:
+        with np.load(entry, allow_pickle=False) as z:
+            xyz, rgb, source = z["xyz"], z["rgb"], str(z["source"])
+        return PointCloud(torch.from_numpy(xyz), torch.from_numpy(rgb), source)
+    except (OSError, ValueError, EOFError, KeyError):
+        pass  # missing or damaged: compute again and overwrite
+    points = load()
+    if points.times is None:
+        arrays = {"xyz": points.xyz.numpy(), "rgb": points.rgb.numpy(), "source": np.array(points.source)}
+        _write(entry, lambda f: np.savez(f, **arrays))
+    return points

@@ -29,6 +29,7 @@ Conventions chosen:
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
 from functools import partial
 from pathlib import Path
@@ -38,6 +39,8 @@ import torch
 from torch import Tensor
 
 from moegs.camera import Camera
+from moegs.data import decoded
+from moegs.data import triangulate as triangulate_module
 from moegs.data._init_points import shared_volume_points
 from moegs.data._io import (
     frame_window,
@@ -131,16 +134,26 @@ def _random_points(cameras: list[Camera], n: int, seed: int, why: str) -> PointC
 
 
 def _fallback_points(
-    native_first: Callable[[], list[View]], cameras: list[Camera], n: int, seed: int, init: str
+    native_first: Callable[[], list[View]],
+    sources: list[Path],
+    cameras: list[Camera],
+    n: int,
+    seed: int,
+    init: str,
 ) -> PointCloud:
     """Points without ``init_pt_cld.npz``: triangulated from ``native_first()`` (the window's first time
-    step at native resolution, built only for this) or random in the shared volume of ``cameras``."""
+    step at native resolution, built only for this; the cloud is cached on disk, keyed on the ``sources``
+    it is computed from and on the triangulation's code) or random in the shared volume of ``cameras``."""
     if init == "triangulate":
         views = native_first()
+
+        def triangulate() -> PointCloud:
+            images = [v.image() for v in views]
+            return triangulated_points([v.camera for v in views], images, max_points=n, seed=seed)
+
+        method = hashlib.sha256(Path(triangulate_module.__file__).read_bytes()).hexdigest()
         try:
-            return triangulated_points(
-                [v.camera for v in views], [v.image() for v in views], max_points=n, seed=seed
-            )
+            return decoded.cached_points(sources, (n, seed, method), triangulate)
         except ValueError as err:
             return _random_points(cameras, n, seed, f"init_pt_cld.npz missing, {err}")
     return _random_points(cameras, n, seed, "init_pt_cld.npz missing")
@@ -223,7 +236,10 @@ def load_panoptic(
     else:
         start = {**common, "window": (window[0], window[0] + 1), "scale": 1.0, "masks": False}
         native_first = partial(_views, root, train_meta, **start)
-        points = _fallback_points(native_first, first, num_points, seed, init) if num_points > 0 else None
+        sources = [train_meta["_path"], *(root / "ims" / fn for fn in train_meta["fn"][window[0]])]
+        points = (
+            _fallback_points(native_first, sources, first, num_points, seed, init) if num_points > 0 else None
+        )
     return loaded_scene(
         "panoptic",
         root.name,

@@ -12,7 +12,7 @@ from PIL import Image
 
 from moegs import paths
 from moegs.data import _io, decoded
-from moegs.data.scene import ImageCache
+from moegs.data.scene import ImageCache, PointCloud
 
 WHITE = torch.ones(3)
 
@@ -104,3 +104,46 @@ def test_memory_cache_is_bounded_by_bytes_and_items():
     items.get("b", lambda: image(1))
     assert len(items) == 1 and items.bytes == 1200
     assert len(ImageCache(max_items=0).get("a", lambda: image(0))) == 10
+
+
+def _cloud(seed: int) -> PointCloud:
+    g = torch.Generator().manual_seed(seed)
+    return PointCloud(torch.rand(50, 3, generator=g), torch.rand(50, 3, generator=g), f"made from {seed}")
+
+
+def test_points_are_computed_once_per_sources_and_arguments(cache, rgba, tmp_path):
+    calls = []
+
+    def make(seed: int):
+        def load():
+            calls.append(seed)
+            return _cloud(seed)
+
+        return load
+
+    first = decoded.cached_points([rgba], (0,), make(0))
+    again = decoded.cached_points([rgba], (0,), make(0))
+    assert calls == [0] and torch.equal(first.xyz, again.xyz) and torch.equal(first.rgb, again.rgb)
+    assert again.source == "made from 0"
+    decoded.cached_points([rgba], (1,), make(1))  # other arguments
+    other = tmp_path / "other.png"
+    other.write_bytes(rgba.read_bytes())
+    decoded.cached_points([rgba, other], (0,), make(0))  # another source
+    stat = rgba.stat()
+    os.utime(rgba, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))  # the file changed
+    decoded.cached_points([rgba], (0,), make(0))
+    assert calls == [0, 1, 0, 0]
+
+
+def test_damaged_points_entry_is_computed_again_and_failures_are_not_stored(cache, rgba):
+    decoded.cached_points([rgba], (0,), lambda: _cloud(0))
+    (entry,) = sorted(cache.rglob("*.npz"))
+    entry.write_bytes(b"not a zip")
+    assert torch.equal(decoded.cached_points([rgba], (0,), lambda: _cloud(0)).xyz, _cloud(0).xyz)
+
+    def fails():
+        raise ValueError("nothing triangulated")
+
+    with pytest.raises(ValueError, match="nothing triangulated"):
+        decoded.cached_points([rgba], (2,), fails)
+    assert len(sorted(cache.rglob("*.npz"))) == 1

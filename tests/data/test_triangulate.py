@@ -116,13 +116,23 @@ def test_errors():
 
 
 @pytest.mark.realdata
-def test_basketball_points_agree_with_held_out_cameras(basketball_root):
+def test_basketball_points_agree_with_held_out_cameras(basketball_root, tmp_path, monkeypatch):
     """Triangulated from the 27 training cameras at frame 0, the points' colours match what the 4
-    held-out test cameras see at their projections far better than the same colours shuffled."""
-    from moegs.data.panoptic import load_panoptic
+    held-out test cameras see at their projections far better than the same colours shuffled. A second
+    load reads the cloud from the disk cache."""
+    from moegs.data import panoptic
 
-    scene = load_panoptic(basketball_root, frames=(0, 1), num_points=5000)
+    monkeypatch.setenv("MOEGS_CACHE", str(tmp_path))
+    monkeypatch.delenv("MOEGS_DECODED_CACHE", raising=False)
+    scene = panoptic.load_panoptic(basketball_root, frames=(0, 1), num_points=5000)
     cloud = scene.points
+
+    def not_again(*args, **kwargs):
+        raise AssertionError("triangulated again")
+
+    monkeypatch.setattr(panoptic, "triangulated_points", not_again)
+    cached = panoptic.load_panoptic(basketball_root, frames=(0, 4), num_points=5000).points
+    assert torch.equal(cached.xyz, cloud.xyz) and cached.source == cloud.source
     assert cloud.source.startswith("triangulated") and 1000 <= len(cloud) <= 5000
     shuffled = cloud.rgb[torch.randperm(len(cloud), generator=torch.Generator().manual_seed(0))]
     errors, baseline = [], []
