@@ -83,3 +83,6 @@ def test_cuda_table_shows_repeat_runs_speedups():
         "| 5k each, 128², fwd (rendering) | 2.0 | 1.0 | 500 → 1000 | 2.00× | 4.00× | – | ≥ 1.5×: met" in text
     )
     assert "Later runs: speed-ups only." in text
+    # a run below the target shows in the verdict, whichever run it was
+    text = cuda_markdown(run(0.001, 0.002), [run(0.001, 0.0013)])
+    assert "| 2.00× | 1.30× | ≥ 1.5×: MISSED in run 2 of 2; paper" in text
