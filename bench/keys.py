@@ -1,8 +1,9 @@
 """Content addressing: canonical JSON hashes, the library's code version and software versions.
 
-``code_version()`` hashes the library's source (``moegs/**.py`` and the C kernel), so results and
-checkpoints are reused exactly while the code that made them is unchanged, across commits that touch
-only other files. ``MOEGS_BENCH_CODE_VERSION`` pins it (reuse old checkpoints at your own risk).
+``code_version()`` hashes the whole library's source (``moegs/**.py`` and the C kernel): the version
+reports name. A task's key hashes only the part of it the task can run (``bench.codedeps``), so
+results and checkpoints are reused exactly while that code is unchanged, across commits that touch
+only other files. ``MOEGS_BENCH_CODE_VERSION`` pins both (reuse old checkpoints at your own risk).
 """
 
 from __future__ import annotations

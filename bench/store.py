@@ -28,6 +28,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from bench.codedeps import loaded_modules
 from bench.keys import file_sha256
 from bench.tasks import Task
 
@@ -162,6 +163,7 @@ class Workspace:
                 "key": task.key,
                 "identity": task.identity(),
                 "build_seconds": time.perf_counter() - start,
+                "modules_loaded": loaded_modules(),
                 "files": {p.name: file_sha256(p) for p in sorted(tmp.iterdir()) if p.is_file()},
             }
             (tmp / META).write_text(json.dumps(meta, indent=1, sort_keys=True, default=str))

@@ -4,8 +4,8 @@ A ``Task`` either *builds* an artefact (a trained expert, a trained router, a Mo
 expert; kept in the checkpoint store and shared by every table that needs it) or *evaluates* a cell
 (one number set for one method on one scene, written as one result JSON). Its key hashes everything
 that changes its output: action, kind, parameters, scene and loader arguments, bench preset (name
-and full definition), seed, and the library's code version. Two tables asking for the same thing
-get the same key, so the work is done once.
+and full definition), seed, and the version of the library code it can run (``bench.codedeps``).
+Two tables asking for the same thing get the same key, so the work is done once.
 """
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
-from bench.keys import code_version, digest
+from bench.codedeps import task_code_version
+from bench.keys import digest
 from bench.presets import get_preset
 
 SCHEMA = 1
@@ -30,6 +31,18 @@ def _plain(obj: Any) -> Any:
     if isinstance(obj, list | tuple):
         return [_plain(v) for v in obj]
     return obj
+
+
+def _named_experts(params: Any) -> set[str]:
+    """Registered expert names among the (nested) string values of ``params``."""
+    from moegs.experts import list_experts
+
+    registered = {spec.name for spec in list_experts()}
+    if isinstance(params, Mapping):
+        return set().union(*(_named_experts(v) for v in params.values()))
+    if isinstance(params, list | tuple):
+        return set().union(*(_named_experts(v) for v in params))
+    return {params} & registered if isinstance(params, str) else set()
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,8 +85,19 @@ class Task:
             "preset": self.preset,
             "preset_definition": digest(get_preset(self.preset).to_dict()),
             "seed": self.seed,
-            "code_version": code_version(),
+            "code_version": self.code_version,
         }
+
+    def code_dependencies(self) -> tuple[str, frozenset[str], str]:
+        """``(kind, expert names, dataset)``: what ``bench.codedeps`` needs to find this task's code."""
+        from moegs.data import parse_scene_name
+
+        return self.kind, frozenset(_named_experts(self.params)), parse_scene_name(self.scene)[0]
+
+    @property
+    def code_version(self) -> str:
+        """Hash of the library source this task can run (``bench.codedeps``)."""
+        return task_code_version(*self.code_dependencies())
 
     @property
     def key(self) -> str:

@@ -19,8 +19,9 @@ from typing import Any
 
 from bench.cells import kind_module
 from bench.cells import scene as scene_kind
+from bench.codedeps import loaded_modules
 from bench.context import Context
-from bench.keys import CODE_VERSION_ENV, code_version, file_sha256, versions
+from bench.keys import file_sha256, versions
 from bench.results import SCHEMA, now, write_json_atomic, write_result
 from bench.store import Workspace
 from bench.tasks import Task
@@ -39,7 +40,7 @@ def write_job(workspace: Workspace, task: Task, threads: int | None) -> Path:
             "workspace": str(workspace.root),
             "threads": threads,
             "log": str(workspace.log_path(task)),
-            "code_version": code_version(),
+            "code_version": task.code_version,
         },
     )
     return path
@@ -117,6 +118,7 @@ def _evaluate(task: Task, ctx: Context, log: Path) -> dict[str, Any]:
                 "eval_s": time.perf_counter() - loaded,
             },
             "versions": versions(),
+            "modules_loaded": loaded_modules(),
         }
     except Exception as err:
         result = {
@@ -164,14 +166,12 @@ def _build(task: Task, ctx: Context, log: Path) -> dict[str, Any]:
 def run_job(job_file: str | Path, redirect: bool = False) -> dict[str, Any]:
     """Run the task of ``job_file``; ``redirect`` sends output to the job's log (submitit path)."""
     job = json.loads(Path(job_file).read_text())
-    # the whole run uses the code version the runner planned with (the source may be edited meanwhile)
-    os.environ[CODE_VERSION_ENV] = job["code_version"]
-    code_version.cache_clear()
     task = Task.from_dict(job["task"])
     if task.key != job["key"]:
+        edited = "library code" if task.code_version != job["code_version"] else "preset"
         raise RuntimeError(
-            f"{job_file}: task key changed since the job was written (code or preset edited "
-            f"during the run?): {job['key']} -> {task.key}"
+            f"{job_file}: task key changed since the job was written ({edited} edited during the run; "
+            f"run bench.all again): {job['key']} -> {task.key}"
         )
     workspace = Workspace(job["workspace"])
     log = Path(job["log"])

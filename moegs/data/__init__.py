@@ -69,6 +69,7 @@ __all__ = [
     "PointCloud",
     "Scene",
     "View",
+    "dataset_module",
     "list_datasets",
     "list_scenes",
     "load_scene",
@@ -88,6 +89,13 @@ def __getattr__(name: str) -> Any:
 def list_datasets() -> list[str]:
     """Dataset names accepted by :func:`load_scene`."""
     return list(_DATASETS)
+
+
+def dataset_module(dataset: str) -> str:
+    """The module that loads ``dataset``'s scenes, e.g. ``"moegs.data.dnerf"`` (named, not imported)."""
+    if dataset not in _DATASETS:
+        raise ValueError(f"unknown dataset {dataset!r}; valid datasets: {list_datasets()}")
+    return _DATASETS[dataset][0]
 
 
 def parse_scene_name(name: str) -> tuple[str, str]:

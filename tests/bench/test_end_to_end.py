@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 
 from bench.all import write_outputs
+from bench.codedeps import task_modules
 from bench.executors import LocalExecutor, SubmititExecutor
 from bench.latex import check_structure
 from bench.plan import Slot, SpecPlan, make_plan
@@ -28,7 +29,7 @@ from bench.registry import get_spec
 from bench.results import read_result
 from bench.runner import execute
 from bench.spec import Claim, Row, Spec
-from bench.store import Workspace
+from bench.store import META, Workspace
 from bench.tasks import Task
 
 pytestmark = pytest.mark.slow
@@ -105,6 +106,20 @@ def test_cells_computed_from_the_real_scene(run):
         assert ckpts and all(len(h) == 64 for a in ckpts for h in a["files"].values())
         assert Path(res["log"]).is_file()
         assert res["per_view"] and all("time" in v for v in res["per_view"])
+
+
+def test_workers_ran_only_library_code_their_keys_hash(run):
+    """Every library module a worker imported is in its task's static closure (``bench.codedeps``), so
+    editing any other module leaves the task's key, and its cached cell, valid."""
+    ws = run["ws"]
+    records = [read_result(ws.result_path(slot.task)) for slot in _ok_slots(run)]
+    records += [json.loads(p.read_text()) for p in sorted(ws.root.glob(f"store/*/*/{META}"))]
+    assert len(records) >= 3 and any("build_seconds" in r for r in records)
+    assert any("moegs.train.loop" in r["modules_loaded"] for r in records)  # the record is the real one
+    for record in records:
+        task = Task.from_dict(record["task"])
+        outside = set(record["modules_loaded"]) - task_modules(*task.code_dependencies())
+        assert not outside, f"{task.slug} imported {sorted(outside)}, which its code version does not hash"
 
 
 def test_latex(run):

@@ -1,0 +1,114 @@
+"""``bench.codedeps``: a task's code version hashes the library modules it can import, and only those."""
+
+from __future__ import annotations
+
+import pytest
+
+from bench import codedeps
+from bench.tasks import Task
+from moegs.data import dataset_module
+
+FILES = {
+    "moegs/__init__.py": "",
+    "moegs/a.py": "def f():\n    from moegs import b  # imported inside a function\n",
+    "moegs/b.py": "from .c import x\n",
+    "moegs/c.py": "x = 1\n",
+    "moegs/unused.py": "import moegs.a\n",
+    "moegs/sub/__init__.py": "",
+    "moegs/sub/e.py": "from .. import c\n",
+    "moegs/experts/__init__.py": "",
+    "moegs/experts/one.py": "",
+    "moegs/experts/two.py": "",
+    "moegs/uses.py": 'from moegs.experts import get\nBASE = get("one")\n',
+    "moegs/mentions.py": 'NAME = "two"  # not the registry: a plain string\n',
+    "moegs/kernels/__init__.py": "",
+    "moegs/kernels/k.c": "int k;\n",
+    "bench/__init__.py": "",
+    "bench/run.py": "import moegs.a\nimport numpy\n",
+    "bench/named.py": 'API = "moegs.sub.e:f"\nTEXT = "moegs.c is not a name here"\n',
+}
+
+
+@pytest.fixture
+def tree(tmp_path, monkeypatch):
+    for name, text in FILES.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    experts = (("one", "moegs.experts.one"), ("two", "moegs.experts.two"))
+    monkeypatch.setattr(codedeps, "builtin_experts", lambda: experts)
+    yield tmp_path
+    codedeps.import_graph.cache_clear()
+    codedeps.source_version.cache_clear()
+
+
+def test_closure_follows_every_import_and_the_parent_packages(tree):
+    assert codedeps.closure(["bench.run"], tree) == {
+        "bench",
+        "bench.run",
+        "moegs",
+        "moegs.a",
+        "moegs.b",
+        "moegs.c",
+    }
+    assert codedeps.closure(["moegs.sub.e"], tree) == {"moegs", "moegs.sub", "moegs.sub.e", "moegs.c"}
+    # the harness names library pieces by string; such a name is an import
+    assert codedeps.closure(["bench.named"], tree) == {
+        "bench",
+        "bench.named",
+        "moegs",
+        "moegs.sub",
+        "moegs.sub.e",
+        "moegs.c",
+    }
+    # an expert asked of the registry by a literal name is imported; a string elsewhere is not
+    assert "moegs.experts.one" in codedeps.closure(["moegs.uses"], tree)
+    assert codedeps.closure(["moegs.mentions"], tree) == {"moegs", "moegs.mentions"}
+    with pytest.raises(KeyError, match="no module 'moegs.nope'"):
+        codedeps.closure(["moegs.nope"], tree)
+
+
+def test_version_moves_with_the_modules_it_hashes_and_no_other(tree):
+    modules = codedeps.closure(["bench.run"], tree)
+    before = codedeps.source_version(modules, tree)
+    (tree / "moegs/unused.py").write_text("import moegs.a\nchanged = True\n")
+    (tree / "bench/run.py").write_text("import moegs.a\nimport numpy\n# harness code is not hashed\n")
+    codedeps.source_version.cache_clear()
+    assert codedeps.source_version(modules, tree) == before
+    (tree / "moegs/c.py").write_text("x = 2\n")
+    codedeps.source_version.cache_clear()
+    assert codedeps.source_version(modules, tree) != before
+
+
+def test_the_c_kernel_counts_where_the_kernels_package_is_imported(tree):
+    with_kernel = frozenset({"moegs", "moegs.kernels"})
+    before, without = (
+        codedeps.source_version(with_kernel, tree),
+        codedeps.source_version(frozenset({"moegs"}), tree),
+    )
+    (tree / "moegs/kernels/k.c").write_text("int k = 1;\n")
+    codedeps.source_version.cache_clear()
+    assert codedeps.source_version(with_kernel, tree) != before
+    assert codedeps.source_version(frozenset({"moegs"}), tree) == without
+
+
+def test_tasks_hash_their_own_expert_and_loader_only():
+    deformable = Task("build", "expert", {"expert": "deformable"}, "dnerf:mutant")
+    modules = codedeps.task_modules(*deformable.code_dependencies())
+    assert {"moegs.experts.deformable", "moegs.data.dnerf", "moegs.train.loop", "moegs.kernels"} <= modules
+    assert not {"moegs.experts.grid4d", "moegs.data.panoptic", "moegs.moe"} & modules
+    moe = Task("build", "moe", {"experts": ["fourdgs", "grid4d"], "router": "vapr"}, "panoptic:basketball")
+    assert moe.code_dependencies() == ("moe", frozenset({"fourdgs", "grid4d"}), "panoptic")
+    modules = codedeps.task_modules(*moe.code_dependencies())
+    assert {
+        "moegs.experts.fourdgs",
+        "moegs.experts.grid4d",
+        "moegs.moe.routers",
+        "moegs.data.panoptic",
+    } <= modules
+    assert "moegs.experts.deformable" not in modules
+    # the version is part of the key; the evaluation of a build shares its code
+    evaluation = deformable.derive("eval", "expert", {"expert": "deformable"})
+    assert deformable.identity()["code_version"] == evaluation.identity()["code_version"]
+    assert deformable.code_version != moe.code_version
+    with pytest.raises(ValueError, match="unknown dataset 'nope'; valid datasets"):
+        dataset_module("nope")
