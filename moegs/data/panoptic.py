@@ -145,9 +145,9 @@ def _fallback_points(
     step at native resolution, built only for this; the cloud is cached on disk, keyed on the ``sources``
     it is computed from and on the triangulation's code) or random in the shared volume of ``cameras``."""
     if init == "triangulate":
-        views = native_first()
 
-        def triangulate() -> PointCloud:
+        def triangulate() -> PointCloud:  # only on a cache miss
+            views = native_first()
             images = [v.image() for v in views]
             return triangulated_points([v.camera for v in views], images, max_points=n, seed=seed)
 

@@ -140,7 +140,7 @@ def load_regimes(scene_dir: str | Path, name: str, size: tuple[int, int]) -> dic
     first hit is an object of each motion regime of the scene (every dynamic category the scene has, also
     where this view does not show it)."""
     gt = load_ground_truth(scene_dir, name)
-    ids = torch.from_numpy(_resize_nearest(gt.ids.numpy().astype(np.uint8), size))
+    ids = torch.from_numpy(_resize_nearest(gt.ids.numpy().astype(np.uint8), size).copy())  # writable
     out: dict[str, Tensor] = {}
     for o in gt.objects:
         if o["dynamic"]:
