@@ -207,6 +207,26 @@ def regime_markdown(experts: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def camera_markdown(experts: list[dict[str, Any]]) -> list[str]:
+    """The expert cells' PSNR per held-out camera on real multi-camera scenes, a table per scene."""
+    lines = []
+    for scene in sorted({r["scene"] for r in experts if r.get("psnr_cameras")}):
+        rows = [r for r in experts if r["scene"] == scene and r.get("psnr_cameras")]
+        cameras = sorted({c for r in rows for c in r["psnr_cameras"]}, key=lambda c: (len(c), c))
+        lines += [
+            "",
+            f"PSNR per held-out camera on {scene} (mean over each camera's test views): a mean over few "
+            "cameras can be one camera's failure.",
+            "",
+            "| expert | PSNR | " + " | ".join(f"camera {c}" for c in cameras) + " |",
+            "|---|---|" + "---|" * len(cameras),
+        ]
+        for r in rows:
+            values = " | ".join(_num(r["psnr_cameras"].get(c)) for c in cameras)
+            lines.append(f"| {r['expert']} | {_num(r['psnr']['full'])} | {values} |")
+    return lines
+
+
 def signals_markdown(signals: dict[str, Any]) -> list[str]:
     """The run's motion, routing and noise evidence (``bench.signals``) as markdown lines."""
     noise = signals.get("noise") or {}
@@ -243,6 +263,7 @@ def signals_markdown(signals: dict[str, Any]) -> list[str]:
                 f"| {_num(p['static'])} | {_num(lp['dynamic'], 3)} | {_num(r.get('motion_r2'))} |"
             )
     lines += regime_markdown(experts)
+    lines += camera_markdown(experts)
     routing = signals.get("routing") or []
     if routing:
         lines += [

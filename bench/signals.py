@@ -50,12 +50,26 @@ def regime_psnrs(metrics: dict[str, Any]) -> dict[str, float]:
     return {k.removeprefix(REGIME_PREFIX): v for k, v in metrics.items() if k.startswith(REGIME_PREFIX)}
 
 
+def per_camera_psnr(per_view: list[dict[str, Any]]) -> dict[str, float]:
+    """``{camera: mean PSNR of its views}`` of a real multi-camera scene; the camera is the folder of the
+    view's image in its key (``panoptic:basketball/0/000000.jpg@160x90`` -> ``"0"``). Empty with fewer
+    than two cameras (one held-out camera, or a monocular scene)."""
+    by_camera: dict[str, list[float]] = {}
+    for view in per_view:
+        path = view["key"].split("/", 1)[-1].rsplit("@", 1)[0]
+        if "/" in path and view.get("psnr") is not None:
+            by_camera.setdefault(path.rsplit("/", 1)[0], []).append(view["psnr"])
+    if len(by_camera) < 2:
+        return {}
+    return {camera: sum(v) / len(v) for camera, v in sorted(by_camera.items())}
+
+
 def expert_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
     """``[{"scene", "dataset", "expert", "preset", "psnr": {"full", "dynamic", "static"}, "ssim": ...,
-    "lpips": ..., "psnr_regimes": {category: PSNR}, "motion_r2"}]`` of the seed-0, full-budget expert cells
-    (``psnr_regimes``: a stand-in's motion regimes, empty on real scenes; ``motion_r2``: the temporal R² of
-    the dynamic region, ``moegs.metrics.motion``; None where no test camera is seen at several times with
-    masks)."""
+    "lpips": ..., "psnr_regimes": {category: PSNR}, "motion_r2", "psnr_cameras": {camera: PSNR}}]`` of the
+    seed-0, full-budget expert cells (``psnr_regimes``: a stand-in's motion regimes, empty on real scenes;
+    ``motion_r2``: the temporal R² of the dynamic region, ``moegs.metrics.motion``; None where no test
+    camera is seen at several times with masks; ``psnr_cameras``: ``per_camera_psnr`` on real scenes)."""
     rows: dict[tuple[str, str, str], dict[str, Any]] = {}
     for _sp, slot, result in _ok_results(plan, workspace, "expert"):
         task = slot.task
@@ -73,6 +87,9 @@ def expert_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
                 **{name: _regions(m, name) for name in ("psnr", "ssim", "lpips")},
                 "psnr_regimes": regime_psnrs(m),
                 "motion_r2": m.get("motion_r2"),
+                "psnr_cameras": per_camera_psnr(result.get("per_view", []))
+                if result.get("scene", {}).get("real")
+                else {},
             },
         )
     return sorted(rows.values(), key=lambda r: (r["scene"], r["dataset"] or "", r["expert"]))

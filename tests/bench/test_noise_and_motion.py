@@ -118,3 +118,21 @@ def test_report_scores_each_motion_regime_of_the_stand_ins():
     assert "| scene | dataset recipe | expert | PSNR dynamic | articulated | transient |" in lines
     assert "| synthetic:n3v_like | n3v | stg | 19.00 | 21.50 | 14.25 |" in lines
     assert regime_markdown([{**row, "psnr_regimes": {}}]) == []  # real scenes: no regimes, no table
+
+
+def test_report_scores_each_held_out_camera_of_a_real_multi_camera_scene():
+    from bench.report import camera_markdown
+    from bench.signals import per_camera_psnr
+
+    views = [
+        {"key": f"panoptic:basketball/{cam}/{frame:06d}.jpg@160x90", "psnr": psnr}
+        for cam, frame, psnr in ((0, 0, 10.0), (0, 1, 12.0), (10, 0, 25.0), (10, 1, 27.0))
+    ]
+    assert per_camera_psnr(views) == {"0": 11.0, "10": 26.0}
+    # one camera (monocular D-NeRF test split, N3V's single held-out camera): nothing to break down
+    assert per_camera_psnr([{"key": "dnerf:mutant/test/r_000.png@100x100", "psnr": 30.0}]) == {}
+    row = {"scene": "panoptic:basketball", "expert": "grid4d", "psnr": {"full": 18.5}}
+    lines = camera_markdown([{**row, "psnr_cameras": per_camera_psnr(views)}])
+    assert "| expert | PSNR | camera 0 | camera 10 |" in lines
+    assert "| grid4d | 18.50 | 11.00 | 26.00 |" in lines
+    assert camera_markdown([{**row, "psnr_cameras": {}}]) == []
