@@ -50,15 +50,22 @@ def regime_psnrs(metrics: dict[str, Any]) -> dict[str, float]:
     return {k.removeprefix(REGIME_PREFIX): v for k, v in metrics.items() if k.startswith(REGIME_PREFIX)}
 
 
-def per_camera_psnr(per_view: list[dict[str, Any]]) -> dict[str, float]:
-    """``{camera: mean PSNR of its views}`` of a real multi-camera scene; the camera is the folder of the
-    view's image in its key (``panoptic:basketball/0/000000.jpg@160x90`` -> ``"0"``). Empty with fewer
-    than two cameras (one held-out camera, or a monocular scene)."""
+#: datasets whose view keys read ``<scene>/<camera>/<file>`` (``moegs.data``'s loaders); the others put
+#: a frame or a split there, so their results carry no camera to group by
+CAMERA_FOLDER_KEYS = ("panoptic", "n3v")
+
+
+def per_camera_psnr(per_view: list[dict[str, Any]], dataset: str) -> dict[str, float]:
+    """``{camera: mean PSNR of its views}`` of a multi-camera scene of ``dataset``, the camera read from
+    the view key (``panoptic:basketball/0/000000.jpg@160x90`` -> ``"0"``); empty for other datasets and
+    with fewer than two cameras."""
+    if dataset not in CAMERA_FOLDER_KEYS:
+        return {}
     by_camera: dict[str, list[float]] = {}
     for view in per_view:
         path = view["key"].split("/", 1)[-1].rsplit("@", 1)[0]
         if "/" in path and view.get("psnr") is not None:
-            by_camera.setdefault(path.rsplit("/", 1)[0], []).append(view["psnr"])
+            by_camera.setdefault(path.split("/", 1)[0], []).append(view["psnr"])
     if len(by_camera) < 2:
         return {}
     return {camera: sum(v) / len(v) for camera, v in sorted(by_camera.items())}
@@ -87,7 +94,7 @@ def expert_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
                 **{name: _regions(m, name) for name in ("psnr", "ssim", "lpips")},
                 "psnr_regimes": regime_psnrs(m),
                 "motion_r2": m.get("motion_r2"),
-                "psnr_cameras": per_camera_psnr(result.get("per_view", []))
+                "psnr_cameras": per_camera_psnr(result.get("per_view", []), task.scene.split(":")[0])
                 if result.get("scene", {}).get("real")
                 else {},
             },
