@@ -50,25 +50,16 @@ def regime_psnrs(metrics: dict[str, Any]) -> dict[str, float]:
     return {k.removeprefix(REGIME_PREFIX): v for k, v in metrics.items() if k.startswith(REGIME_PREFIX)}
 
 
-#: datasets whose view keys read ``<scene>/<camera>/<file>`` (``moegs.data``'s loaders); the others put
-#: a frame or a split there, so their results carry no camera to group by
-CAMERA_FOLDER_KEYS = ("panoptic", "n3v")
-
-
-def per_camera_psnr(per_view: list[dict[str, Any]], dataset: str) -> dict[str, float]:
-    """``{camera: mean PSNR of its views}`` of a multi-camera scene of ``dataset``, the camera read from
-    the view key (``panoptic:basketball/0/000000.jpg@160x90`` -> ``"0"``); empty for other datasets and
-    with fewer than two cameras."""
-    if dataset not in CAMERA_FOLDER_KEYS:
-        return {}
+def per_camera_psnr(per_view: list[dict[str, Any]]) -> dict[str, float]:
+    """``{camera id: mean PSNR of its views}`` (each view's ``camera``, recorded by the evaluation);
+    empty with fewer than two cameras (one held-out camera, or a monocular scene)."""
     by_camera: dict[str, list[float]] = {}
     for view in per_view:
-        path = view["key"].split("/", 1)[-1].rsplit("@", 1)[0]
-        if "/" in path and view.get("psnr") is not None:
-            by_camera.setdefault(path.split("/", 1)[0], []).append(view["psnr"])
+        if view.get("psnr") is not None:
+            by_camera.setdefault(str(view["camera"]), []).append(view["psnr"])
     if len(by_camera) < 2:
         return {}
-    return {camera: sum(v) / len(v) for camera, v in sorted(by_camera.items())}
+    return {camera: sum(v) / len(v) for camera, v in sorted(by_camera.items(), key=lambda kv: int(kv[0]))}
 
 
 def expert_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
@@ -94,7 +85,7 @@ def expert_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
                 **{name: _regions(m, name) for name in ("psnr", "ssim", "lpips")},
                 "psnr_regimes": regime_psnrs(m),
                 "motion_r2": m.get("motion_r2"),
-                "psnr_cameras": per_camera_psnr(result.get("per_view", []), task.scene.split(":")[0])
+                "psnr_cameras": per_camera_psnr(result.get("per_view", []))
                 if result.get("scene", {}).get("real")
                 else {},
             },

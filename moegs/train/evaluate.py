@@ -122,11 +122,12 @@ def evaluate_renderer(
 
     Returns:
         ``{**KEYS, "motion_r2", "psnr_regions", "lpips_unavailable", "profile", "num_views", "region_masks",
-        "per_view": [{"key", "time", **KEYS}], "components": {name: mean KEYS}}``; ``motion_r2`` is the
-        temporal R² of the dynamic region (``moegs.metrics.motion``; None without a camera seen at several
-        times with masks); ``psnr_regions`` the pooled PSNR of each named region (empty without
-        ``View.regions``); ``region_masks`` says whether any view had a mask; ``components`` is there only
-        when ``render`` returns component images too.
+        "per_view": [{"key", "camera", "time", **KEYS}], "components": {name: mean KEYS}}``: ``camera`` is
+        the view's ``camera_id``; ``motion_r2`` the temporal R² of the dynamic region
+        (``moegs.metrics.motion``; None without a camera seen at several times with masks);
+        ``psnr_regions`` the pooled PSNR of each named region (empty without ``View.regions``);
+        ``region_masks`` says whether any view had a mask; ``components`` is there only when ``render``
+        returns component images too.
     """
     if not views:
         raise ValueError("evaluate_renderer needs at least one view")
@@ -143,7 +144,9 @@ def evaluate_renderer(
         if regions:
             pooled.add(image, target, view.regions())
         unavailable, prof = scores.pop("lpips_unavailable"), scores.pop("profile")
-        per_view.append({"key": view.key, "time": float(view.camera.time), **scores})
+        per_view.append(
+            {"key": view.key, "camera": view.camera.camera_id, "time": float(view.camera.time), **scores}
+        )
     return {
         **mean_scores(per_view),
         "motion_r2": motion.value(),

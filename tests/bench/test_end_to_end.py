@@ -105,7 +105,7 @@ def test_cells_computed_from_the_real_scene(run):
         ckpts = [a for a in res["artifacts"].values() if a["kind"] == "expert"]
         assert ckpts and all(len(h) == 64 for a in ckpts for h in a["files"].values())
         assert Path(res["log"]).is_file()
-        assert res["per_view"] and all("time" in v for v in res["per_view"])
+        assert res["per_view"] and all({"time", "camera"} <= set(v) for v in res["per_view"])
 
 
 def test_workers_ran_only_library_code_their_keys_hash(run):

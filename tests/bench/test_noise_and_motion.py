@@ -125,17 +125,14 @@ def test_report_scores_each_held_out_camera_of_a_real_multi_camera_scene():
     from bench.signals import per_camera_psnr
 
     views = [
-        {"key": f"panoptic:basketball/{cam}/{frame:06d}.jpg@160x90", "psnr": psnr}
+        {"key": f"panoptic:basketball/{cam}/{frame:06d}.jpg@160x90", "camera": cam, "psnr": psnr}
         for cam, frame, psnr in ((0, 0, 10.0), (0, 1, 12.0), (10, 0, 25.0), (10, 1, 27.0))
     ]
-    assert per_camera_psnr(views, "panoptic") == {"0": 11.0, "10": 26.0}
-    # one held-out camera (N3V's cam00): nothing to break down
-    assert per_camera_psnr([{"key": "n3v:coffee/cam00/3@100x75", "psnr": 30.0}], "n3v") == {}
-    # Technicolor's keys put the frame where Panoptic's put the camera: no grouping by a wrong field
-    frames = [{"key": f"technicolor:birthday/{f}/{c}@96x54", "psnr": 20.0} for f in (0, 1) for c in (0, 1)]
-    assert per_camera_psnr(frames, "technicolor") == {}
+    assert per_camera_psnr(views) == {"0": 11.0, "10": 26.0}
+    # one held-out camera (N3V's cam00, D-NeRF's monocular test split): nothing to break down
+    assert per_camera_psnr([{"key": "n3v:coffee/cam00/3@100x75", "camera": 0, "psnr": 30.0}]) == {}
     row = {"scene": "panoptic:basketball", "expert": "grid4d", "psnr": {"full": 18.5}}
-    lines = camera_markdown([{**row, "psnr_cameras": per_camera_psnr(views, "panoptic")}])
+    lines = camera_markdown([{**row, "psnr_cameras": per_camera_psnr(views)}])
     assert "| expert | PSNR | camera 0 | camera 10 |" in lines
     assert "| grid4d | 18.50 | 11.00 | 26.00 |" in lines
     assert camera_markdown([{**row, "psnr_cameras": {}}]) == []
