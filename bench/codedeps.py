@@ -26,7 +26,7 @@ from collections.abc import Iterable
 from functools import cache
 from pathlib import Path
 
-from bench.keys import CODE_VERSION_ENV, REPO, code_version
+from bench.keys import CODE_VERSION_ENV, REPO, code_version, source_fingerprint
 
 PACKAGES = ("moegs", "bench")
 KERNEL_PACKAGE = "moegs.kernels"
@@ -125,7 +125,7 @@ def source_version(modules: frozenset[str], root: Path = REPO) -> str:
     h = hashlib.sha256()
     for name in chosen:
         path = module_file(name, root)
-        h.update(str(path.relative_to(root)).encode() + b"\0" + path.read_bytes() + b"\0")
+        h.update(str(path.relative_to(root)).encode() + b"\0" + source_fingerprint(path) + b"\0")
     if KERNEL_PACKAGE in chosen:
         kernel = root.joinpath(*KERNEL_PACKAGE.split("."))
         for path in sorted(p for p in kernel.iterdir() if p.suffix in _KERNEL_SUFFIXES):

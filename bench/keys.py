@@ -1,13 +1,17 @@
 """Content addressing: canonical JSON hashes, the library's code version and software versions.
 
 ``code_version()`` hashes the whole library's source (``moegs/**.py`` and the C kernel): the version
-reports name. A task's key hashes only the part of it the task can run (``bench.codedeps``), so
-results and checkpoints are reused exactly while that code is unchanged, across commits that touch
-only other files. ``MOEGS_BENCH_CODE_VERSION`` pins both (reuse old checkpoints at your own risk).
+reports name. A task's key hashes only the part of it the task can run (``bench.codedeps``), so results
+and checkpoints are reused exactly while that code is unchanged, across commits that touch only other
+files. A Python file counts by its syntax tree without docstrings (``source_fingerprint``): comments,
+docstrings and layout never invalidate a result (the tree's printed form may change between Python
+versions, and every key with it). ``MOEGS_BENCH_CODE_VERSION`` pins both (reuse old checkpoints at your
+own risk).
 """
 
 from __future__ import annotations
 
+import ast
 import hashlib
 import json
 import os
@@ -49,6 +53,25 @@ def file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+def source_fingerprint(path: Path) -> bytes:
+    """What of a source file can change behaviour: a ``.py`` file's syntax tree without its docstrings
+    (comments and layout are not in the tree); any other file's bytes."""
+    if path.suffix != ".py":
+        return path.read_bytes()
+    tree = ast.parse(path.read_bytes(), filename=str(path))
+    for node in ast.walk(tree):
+        body = getattr(node, "body", None)
+        if (
+            isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef)
+            and body
+            and isinstance(body[0], ast.Expr)
+            and isinstance(body[0].value, ast.Constant)
+            and isinstance(body[0].value.value, str)
+        ):
+            node.body = body[1:]
+    return ast.dump(tree).encode()
+
+
 @cache
 def code_version() -> str:
     """Hash of the library source (``moegs/``) and of every plugin expert's module, or
@@ -60,7 +83,7 @@ def code_version() -> str:
     root = REPO / "moegs"
     for p in sorted(root.rglob("*")):
         if p.is_file() and p.suffix in _SOURCE_SUFFIXES and "__pycache__" not in p.parts:
-            h.update(str(p.relative_to(root)).encode() + b"\0" + p.read_bytes() + b"\0")
+            h.update(str(p.relative_to(root)).encode() + b"\0" + source_fingerprint(p) + b"\0")
     for name, source in plugin_sources():
         h.update(name.encode() + b"\0" + source + b"\0")
     return h.hexdigest()[:16]

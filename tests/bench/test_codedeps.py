@@ -79,6 +79,29 @@ def test_version_moves_with_the_modules_it_hashes_and_no_other(tree):
     assert codedeps.source_version(modules, tree) != before
 
 
+def test_comments_docstrings_and_layout_do_not_move_a_version_and_code_does(tree):
+    modules = codedeps.closure(["moegs.c"], tree)
+    path = tree / "moegs/c.py"
+    path.write_text('"""Module doc."""\n\n\ndef f(a):\n    """Doc."""\n    return a + 1\n')
+    codedeps.source_version.cache_clear()
+    before = codedeps.source_version(modules, tree)
+    path.write_text('"""Other doc."""\n# a comment\ndef f( a ):  # why\n    return (a\n            + 1)\n')
+    codedeps.source_version.cache_clear()
+    assert codedeps.source_version(modules, tree) == before
+    # a string that is not a docstring is code
+    path.write_text('"""Module doc."""\n\n\ndef f(a):\n    "Doc."\n    "kept"\n    return a + 1\n')
+    codedeps.source_version.cache_clear()
+    assert codedeps.source_version(modules, tree) != before
+    path.write_text('"""Module doc."""\n\n\ndef f(a):\n    return a + 2\n')
+    codedeps.source_version.cache_clear()
+    assert codedeps.source_version(modules, tree) != before
+    path.write_text("def f(a):\n    return a +\n")
+    codedeps.source_version.cache_clear()
+    with pytest.raises(SyntaxError) as err:
+        codedeps.source_version(modules, tree)
+    assert err.value.filename == str(path)
+
+
 def test_the_c_kernel_counts_where_the_kernels_package_is_imported(tree):
     with_kernel = frozenset({"moegs", "moegs.kernels"})
     before, without = (
