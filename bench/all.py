@@ -147,7 +147,7 @@ def write_outputs(
     from bench.report import spec_report, write_report
     from bench.sidebyside import compare
     from bench.sidebyside import write_latex as write_comparison
-    from bench.signals import expert_rows, routing_rows, seed_noise
+    from bench.signals import compute_rows, expert_rows, routing_rows, seed_noise
     from bench.values import SpecValues
 
     reports, written, comparisons = [], [], []
@@ -181,6 +181,7 @@ def write_outputs(
         "experts": expert_rows(plan, workspace),
         "routing": routing_rows(plan, workspace),
         "presets": comparisons,
+        "compute": compute_rows(plan, workspace),
     }
     paths = write_report(reports, plan.preset, reports_dir, run, signals)
     return {"reports": reports, "paths": paths, "tables": written}

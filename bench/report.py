@@ -322,6 +322,29 @@ def presets_markdown(comparisons: list[Any]) -> list[str]:
     return lines
 
 
+def compute_markdown(compute: dict[str, Any]) -> list[str]:
+    """What the cells cost (``bench.signals.compute_rows``): builds by what they made, evaluations by kind."""
+    if not compute.get("builds") and not compute.get("evaluations"):
+        return []
+    lines = [
+        "## What the cells cost",
+        "",
+        f"The report's cells took **{compute['minutes']:.1f} minutes** of single-process wall clock, as each "
+        "recorded it when it was computed (a build once, however many cells share it; a run with `--jobs N` "
+        "divides the wall clock by up to N; timings of cells reused from earlier runs are theirs):",
+        "",
+        "| build | made | count | minutes |",
+        "|---|---|---|---|",
+        *(f"| {r['kind']} | {r['what']} | {r['count']} | {r['minutes']:.1f} |" for r in compute["builds"]),
+        "",
+        "| evaluation | count | minutes |",
+        "|---|---|---|",
+        *(f"| {r['kind']} | {r['count']} | {r['minutes']:.1f} |" for r in compute["evaluations"]),
+        "",
+    ]
+    return lines
+
+
 def render_markdown(
     reports: list[SpecReport], header: dict[str, Any], base: Path, signals: dict[str, Any] | None = None
 ) -> str:
@@ -352,6 +375,7 @@ def render_markdown(
     lines += signals_markdown(signals or {})
     lines += presets_markdown((signals or {}).get("presets", []))
     lines += convergence_markdown(base)
+    lines += compute_markdown((signals or {}).get("compute", {}))
     lines += [
         "## Summary",
         "",
@@ -502,7 +526,8 @@ def write_report(
     signals: dict[str, Any] | None = None,
 ) -> dict[str, Path]:
     """Write REPORT.md, REPORT.html and summary.json into ``out_dir``; ``signals`` (``bench.signals``:
-    ``noise``, ``experts``, ``routing``) go into the report and into summary.json as top-level keys."""
+    ``noise``, ``experts``, ``routing``, ``compute``) go into the report and into summary.json as top-level
+    keys."""
     out_dir.mkdir(parents=True, exist_ok=True)
     header = _header(preset, run)
     signals = signals or {}
@@ -514,6 +539,7 @@ def write_report(
         "noise": signals.get("noise", {}),
         "experts": signals.get("experts", []),
         "routing": signals.get("routing", []),
+        "compute": signals.get("compute", {}),
         "specs": [_relative(asdict(r), out_dir) for r in reports],
     }
     paths["json"].write_text(json.dumps(summary, indent=1, default=str) + "\n", encoding="utf-8")

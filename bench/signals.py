@@ -7,7 +7,9 @@
 * ``routing_rows``: every MoE-GS cell's routing signal (``moegs.moe.winner_coherence`` of the winner map,
   and the share of dynamic / static pixels each expert wins);
 * ``seed_noise``: the seed-to-seed spread of the stability runs (the ``seeds``-axis specs): the largest
-  max - min over seeds of any row, per metric. Claims whose margin is inside it are "within noise".
+  max - min over seeds of any row, per metric. Claims whose margin is inside it are "within noise";
+* ``compute_rows``: what the run's cells cost, as each result recorded it when it was computed (training
+  of every build, once however many cells share it, and every evaluation).
 """
 
 from __future__ import annotations
@@ -23,13 +25,13 @@ from bench.store import Workspace
 REGION_KEYS = {"full": "", "dynamic": "_dynamic", "static": "_static"}
 
 
-def _ok_results(plan: Plan, workspace: Workspace, kind: str):
-    """``(spec plan, slot, result)`` of every finished ``kind`` evaluation, each task once."""
+def _ok_results(plan: Plan, workspace: Workspace, kind: str | None):
+    """``(spec plan, slot, result)`` of every finished ``kind`` evaluation (None: any), each task once."""
     seen: set[str] = set()
     for sp in plan.specs:
         for slot in sp.slots:
             task = slot.task
-            if task is None or task.kind != kind or task.key in seen:
+            if task is None or (kind is not None and task.kind != kind) or task.key in seen:
                 continue
             seen.add(task.key)
             path = workspace.result_path(task)
@@ -146,3 +148,44 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
                     continue
                 spreads[name] = max(spreads.get(name, 0.0), max(values) - min(values))
     return {"metrics": spreads, "source": sources}
+
+
+def _build_label(artifact: dict[str, Any]) -> str:
+    """What a build made, in a few words: ``stg``, ``vapr router: ex4dgs+stg``, ``MoDE: fourdgs+ed3dgs``."""
+    params = artifact.get("params", {})
+    kind = artifact.get("kind", "?")
+    if kind == "expert":
+        return params.get("expert", "?")
+    if kind == "moe":
+        return f"{params.get('router', 'vapr')} router: " + "+".join(params.get("experts", []))
+    if kind == "mode":
+        return "MoDE: " + "+".join(params.get("experts", []))
+    if kind == "distill":
+        return f"{params.get('student', '?')} from " + "+".join(params.get("teacher", []))
+    return kind
+
+
+def compute_rows(plan: Plan, workspace: Workspace) -> dict[str, Any]:
+    """``{"builds": [{"kind", "what", "count", "minutes"}], "evaluations": [{"kind", "count", "minutes"}],
+    "minutes"}``: the single-process wall-clock minutes the finished cells of ``plan`` recorded, builds
+    grouped by kind and what they made (each build once, though many cells share it), largest first."""
+    builds: dict[str, dict[str, Any]] = {}
+    evals: dict[str, list[float]] = {}
+    for _sp, slot, result in _ok_results(plan, workspace, None):
+        evals.setdefault(slot.task.kind, []).append(result.get("timings", {}).get("eval_s", 0.0))
+        for key, artifact in result.get("artifacts", {}).items():
+            builds.setdefault(key, artifact)
+    grouped: dict[tuple[str, str], list[float]] = {}
+    for artifact in builds.values():
+        group = (artifact.get("kind", "?"), _build_label(artifact))
+        grouped.setdefault(group, []).append(artifact.get("build_seconds") or 0.0)
+    build_rows = [
+        {"kind": kind, "what": what, "count": len(v), "minutes": sum(v) / 60}
+        for (kind, what), v in grouped.items()
+    ]
+    eval_rows = [{"kind": kind, "count": len(v), "minutes": sum(v) / 60} for kind, v in evals.items()]
+    return {
+        "builds": sorted(build_rows, key=lambda r: (-r["minutes"], r["kind"], r["what"])),
+        "evaluations": sorted(eval_rows, key=lambda r: (-r["minutes"], r["kind"])),
+        "minutes": sum(r["minutes"] for r in build_rows + eval_rows),
+    }

@@ -176,6 +176,17 @@ def test_plots_and_report(run):
         assert 0.0 <= routing["coherence"] <= 1.0
         assert len(routing["dynamic_share"]) == len(routing["static_share"]) == 2
     assert "noise" in summary and "## Motion, routing and noise" in md
+    # what the cells cost: every build once (the experts, and the router of MoE-GS), every evaluation
+    compute = summary["compute"]
+    made = {(r["kind"], r["what"]) for r in compute["builds"]}
+    experts = {row["expert"] for row in summary["experts"]}
+    assert {("expert", e) for e in experts} <= made
+    if spec.id == "tab17":
+        assert ("moe", "vapr router: deformable+grid4d") in made
+    assert sum(r["count"] for r in compute["evaluations"]) == len({s.task.key for s in _ok_slots(run)})
+    parts = [r["minutes"] for r in compute["builds"] + compute["evaluations"]]
+    assert all(m > 0 for m in parts) and compute["minutes"] == pytest.approx(sum(parts))
+    assert "## What the cells cost" in md
 
 
 def test_warm_rerun_reuses_everything(run):

@@ -136,3 +136,25 @@ def test_report_scores_each_held_out_camera_of_a_real_multi_camera_scene():
     assert "| expert | PSNR | camera 0 | camera 10 |" in lines
     assert "| grid4d | 18.50 | 11.00 | 26.00 |" in lines
     assert camera_markdown([{**row, "psnr_cameras": {}}]) == []
+
+
+def test_report_states_what_the_cells_cost():
+    from bench.report import compute_markdown
+    from bench.signals import _build_label
+
+    assert _build_label({"kind": "expert", "params": {"expert": "stg"}}) == "stg"
+    router = {"kind": "moe", "params": {"experts": ["ex4dgs", "stg"], "router": "pixel"}}
+    assert _build_label(router) == "pixel router: ex4dgs+stg"
+    student = {"kind": "distill", "params": {"student": "ed3dgs", "teacher": ["ex4dgs", "stg"]}}
+    assert _build_label(student) == "ed3dgs from ex4dgs+stg"
+    mode = {"kind": "mode", "params": {"experts": ["fourdgs", "grid4d"]}}
+    assert _build_label(mode) == "MoDE: fourdgs+grid4d"
+    compute = {
+        "builds": [{"kind": "expert", "what": "stg", "count": 2, "minutes": 3.0}],
+        "evaluations": [{"kind": "moe", "count": 4, "minutes": 0.5}],
+        "minutes": 3.5,
+    }
+    lines = compute_markdown(compute)
+    assert "## What the cells cost" in lines and "| expert | stg | 2 | 3.0 |" in lines
+    assert "| moe | 4 | 0.5 |" in lines and any("**3.5 minutes**" in line for line in lines)
+    assert compute_markdown({}) == [] and compute_markdown({"builds": [], "evaluations": []}) == []
