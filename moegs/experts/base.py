@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Callable, Hashable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, ClassVar, Self
 
 import torch
@@ -93,6 +93,21 @@ class DatasetPreset:
     adapted: bool = False
 
 
+NEAR_3DGS = 0.2
+"""The 3DGS CUDA rasterizer culls a Gaussian whose view-space depth is ``<= 0.2`` (graphdeco-inria
+``diff-gaussian-rasterization``, ``cuda_rasterizer/auxiliary.h:154``, ``in_frustum``), in scene units and
+for every dataset; the projection matrix's ``znear`` 0.01 culls nothing. The forks that 3DGS-MCMC,
+DeformableGS, 4DGaussians, Grid4D, E-D3DGS and STG train and evaluate with keep it (``auxiliary.h:154``;
+STG's ``forward_full`` line 157), as does the stock rasterizer the MoE-GS code splats routing weights with;
+Ex4DGS's takes the dataset's near, 0.2 by default (``Ex4DGSConfig.near``). gsplat culls at
+``near_plane``, 0.01 by default."""
+
+
+def clip_camera(camera: Camera, near: float | None) -> Camera:
+    """``camera`` with its near plane raised to ``near`` (unchanged when ``near`` is None or lower)."""
+    return camera if near is None or near <= camera.near else replace(camera, near=near)
+
+
 @dataclass
 class ExpertConfig(Presets):
     """Base of expert configs: the training settings, named presets and the recipe tables.
@@ -112,6 +127,10 @@ class ExpertConfig(Presets):
 
     train: TrainConfig = field(default_factory=TrainConfig)
     """Settings of the training loop (iterations, batch, D-SSIM weight, resolution ...)."""
+    near: float | None = NEAR_3DGS
+    """View depth at or below which the original's rasterizer drops a Gaussian (radius 0) in training and
+    evaluation renders; renders use the larger of this and the camera's own near plane (None: the
+    camera's). Default: the 3DGS rasterizer that every expert but Ex4DGS is built on (``NEAR_3DGS``)."""
 
     DATASET_PRESETS: ClassVar[dict[str, DatasetPreset]] = {}
     DEFAULT_PRESET: ClassVar[str] = "paper"
@@ -191,12 +210,14 @@ class SplatInputs:
         background: ``[C]`` in the frame's channels, or None (black).
         antialiased: the 0.1-px dilation mode with opacity compensation (Ex4DGS).
         decode: splatted ``[H, W, C]`` -> RGB ``[H, W, 3]`` for this view; None = identity.
+        near: the expert's near plane (``ExpertConfig.near``): the render's camera is ``clip_camera``-ed.
     """
 
     frame: GaussianFrame
     background: Tensor | None
     antialiased: bool = False
     decode: Callable[[Tensor], Tensor] | None = None
+    near: float | None = None
 
     def decoded(self, image: Tensor) -> Tensor:
         return image if self.decode is None else self.decode(image)
@@ -205,12 +226,13 @@ class SplatInputs:
 def render_splat_inputs(
     inputs: SplatInputs, camera: Camera, backend: str = "auto", return_stats: bool = False
 ) -> tuple[Tensor, RenderOutput, GaussianFrame]:
-    """``(rgb [H, W, 3], RenderOutput, frame)``: rasterize ``inputs`` for ``camera`` and decode."""
+    """``(rgb [H, W, 3], RenderOutput, frame)``: rasterize ``inputs`` for ``camera`` (its near plane raised
+    to ``inputs.near``) and decode."""
     from moegs.render import rasterize
 
     out = rasterize(
         inputs.frame,
-        camera,
+        clip_camera(camera, inputs.near),
         background=inputs.background,
         antialiased=inputs.antialiased,
         return_stats=return_stats,
@@ -278,7 +300,7 @@ class Expert(nn.Module, metaclass=abc.ABCMeta):
         """What ``render`` rasterizes at ``camera.time`` (evaluation path): the frame, the background in
         the frame's channels, the rasterizer mode and the decoder. MoE-GS splats routing weights with
         exactly this geometry and renders several experts in one pass from it."""
-        return SplatInputs(self.frame(camera.time, camera), background)
+        return SplatInputs(self.frame(camera.time, camera), background, near=self.config.near)
 
     def splat_inputs_key(self, camera: Camera) -> Hashable:
         """Equal keys promise equal ``splat_inputs`` in eval mode (for one background), so a frozen expert's

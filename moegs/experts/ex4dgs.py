@@ -25,7 +25,7 @@ section 2.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import torch
@@ -34,12 +34,14 @@ from torch import Tensor, nn
 from moegs.camera import Camera
 from moegs.data.scene import Scene, View
 from moegs.experts.base import (
+    NEAR_3DGS,
     QUICK_ITERATIONS,
     DatasetPreset,
     Expert,
     ExpertConfig,
     ParamGroup,
     SplatInputs,
+    clip_camera,
     splat_param_groups,
 )
 from moegs.experts.gaussian_params import active_sh_degree, init_splats, sh_coeffs
@@ -148,6 +150,10 @@ def extrapolate_keyframes(keys: Tensor, valid: int, average: int = 4) -> Tensor:
 
 
 # -- config ----------------------------------------------------------------------------------------------
+N3V_NEAR = 4.0
+"""Ex4DGS's N3V near plane, in N3V's world frame (``configs/N3V/n3v_base.json:16``)."""
+
+
 @dataclass
 class Ex4DGSConfig(ExpertConfig):
     """Ex4DGS hyperparameters. Defaults: N3V (``configs/N3V/n3v_base.json`` over
@@ -208,9 +214,12 @@ class Ex4DGSConfig(ExpertConfig):
     """Widen the temporal widths near the ends and clamp the centres every this many iterations ..."""
     adjust_until: int = 27_000
     """... until here (``adjust_temp_opa``)."""
-    near: float | None = None
-    """Near plane of training and evaluation renders (N3V: 4.0 in its world frame, ``configs/N3V/
-    n3v_base.json:16``; ``render.py:135-138``); None: the camera's own."""
+    near: float | None = NEAR_3DGS
+    """Near plane of training and evaluation renders: its rasterizer culls at view depth ``<= min_depth``
+    (``submodules/diff_gaussian_rasterization_df/cuda_rasterizer/auxiliary.h:284``), the dataset's
+    ``near`` (``gaussian_renderer/__init__.py:55``, ``train.py:138``, ``render.py:135-138``): 0.2 by
+    default (``arguments/__init__.py``), N3V 4.0 in its world frame (``configs/N3V/n3v_base.json:16``),
+    Technicolor 0.01 (``configs/techni/*.json``)."""
     strategy: Strategy = field(default_factory=lambda: Ex4DGSStrategy())
     train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations=40_000, lambda_dssim=0.2))
     """N3V: 40k iterations, 0.8 L1 + 0.2 D-SSIM."""
@@ -283,21 +292,21 @@ class Ex4DGSConfig(ExpertConfig):
     @classmethod
     def paper_n3v(cls) -> Ex4DGSConfig:
         """The defaults with N3V's near plane 4.0 (see ``near``)."""
-        return cls(near=4.0)
+        return cls(near=N3V_NEAR)
 
     @classmethod
     def paper_technicolor(cls) -> Ex4DGSConfig:
         """The values all ``configs/techni/*.json`` share: ``time_pad`` 3, temporal-centre lr 1e-3, 3777
-        iterations between extractions, no N3V near plane (near 0.01). Deviations: the original normalises
+        iterations between extractions, near plane 0.01. Deviations: the original normalises
         Technicolor scenes by the camera radius (``scene/dataset_readers.py:484-509``; absolute-unit rates
         such as the drift lr differ), and Birthday / Painter / Train use 2.5e-4 for the dynamic SH (ours share
         one SH rate)."""
-        return cls(time_pad=3, centers_lr=1e-3, extract_every=3777)
+        return cls(time_pad=3, centers_lr=1e-3, extract_every=3777, near=0.01)
 
     @classmethod
     def own_frame_fields(cls, config: Ex4DGSConfig, dataset: str, real: bool) -> dict[str, Any]:
-        """The near plane 4.0 holds in real N3V's world frame only."""
-        return {} if (dataset == "n3v" and real) or config.near is None else {"near": None}
+        """N3V's near plane 4.0 holds in real N3V's world frame only; elsewhere the code's default 0.2."""
+        return {"near": NEAR_3DGS} if config.near == N3V_NEAR and not (dataset == "n3v" and real) else {}
 
     @classmethod
     def quick_fields(cls, paper: Ex4DGSConfig) -> dict[str, Any]:
@@ -560,13 +569,9 @@ class Ex4DGSExpert(Expert):
             sh=sh_coeffs(s, self.active_sh_degree),
         )
 
-    def clipped(self, camera: Camera) -> Camera:
-        """``camera`` with the config's near plane (N3V 4.0), if any."""
-        near = self.config.near
-        return camera if near is None or near <= camera.near else replace(camera, near=near)
-
     def splat_inputs(self, camera: Camera, background: Tensor | None) -> SplatInputs:
-        return SplatInputs(self.frame(camera.time, camera), background, antialiased=True)
+        frame = self.frame(camera.time, camera)
+        return SplatInputs(frame, background, antialiased=True, near=self.config.near)
 
     def splat_inputs_key(self, camera: Camera) -> float:
         """Keyframe interpolation of ``t`` and SH colours: the inputs depend on the camera only through its
@@ -578,7 +583,7 @@ class Ex4DGSExpert(Expert):
     ) -> tuple[Tensor, RenderOutput, GaussianFrame]:
         """Antialiased render (0.1 dilation). While training: random background and the back-tracking
         probe (3 extra channels, kept in the graph with zero weight; see ``observe``)."""
-        camera = self.clipped(camera)
+        camera = clip_camera(camera, self.config.near)
         if not self.training:
             return super().render(camera, background, backend, return_stats)
         frame = self.frame(camera.time, camera)
@@ -697,7 +702,7 @@ class Ex4DGSExpert(Expert):
         c, s = self.config, self.splats
         out = rasterize(
             self.frame(camera.time, camera).detach(),
-            camera,
+            clip_camera(camera, c.near),
             antialiased=True,
             return_depth=False,
             return_stats=True,

@@ -522,10 +522,11 @@ class STGExpert(Expert):
         SH or RGB otherwise."""
         frame = self.frame(camera.time, camera)
         if self.config.color != "full":
-            return SplatInputs(frame, background, self.config.antialiased)
+            return SplatInputs(frame, background, self.config.antialiased, near=self.config.near)
         if background is not None:
             background = self.fields.background(background)
-        return SplatInputs(frame, background, self.config.antialiased, partial(self.decode, camera=camera))
+        decode = partial(self.decode, camera=camera)
+        return SplatInputs(frame, background, self.config.antialiased, decode, near=self.config.near)
 
     def splat_inputs_key(self, camera: Camera) -> Hashable:
         """The time, except for the full model, whose feature decoder reads the camera."""

@@ -6,20 +6,23 @@
 With ``single_pass=True`` the experts are rendered by ``rasterize_multi``: projection and sorting once,
 one transmittance per expert (the paper's Single-Pass Multi-Expert Rendering). Experts whose rasterizer
 modes differ (Ex4DGS's antialiased 0.1-px dilation vs the 3DGS 0.3-px blur) cannot share one projection;
-they are rendered in one pass per mode. ``single_pass=False`` renders each expert on its own, as the
+they are rendered in one pass per mode. Each expert keeps its own near plane (``SplatInputs.near``) inside
+a shared pass: its Gaussians at or below that view depth get zero opacity, which composites nothing,
+exactly as culling them does. ``single_pass=False`` renders each expert on its own, as the
 authors' code does. Both give the same images (tested).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
 
 from moegs.camera import Camera
 from moegs.experts.base import Expert, SplatInputs
+from moegs.gaussians import GaussianFrame
 from moegs.render import frame_colors, rasterize_multi
 
 
@@ -56,6 +59,16 @@ def _passes(inputs: Sequence[SplatInputs], single_pass: bool) -> list[list[int]]
     return list(modes.values())
 
 
+def near_culled(frame: GaussianFrame, camera: Camera, near: float | None) -> GaussianFrame:
+    """``frame`` with zero opacity where the view depth is ``<= near`` (an expert's own near plane, when
+    above the camera's): the Gaussians its rasterizer would cull composite nothing."""
+    if near is None or near <= camera.near:
+        return frame
+    w2c = camera.world_to_camera.to(frame.means)
+    depth = frame.means @ w2c[2, :3] + w2c[2, 3]  # [N]
+    return replace(frame, opacities=torch.where(depth > near, frame.opacities, 0.0))
+
+
 def splat_experts(
     inputs: Sequence[SplatInputs],
     camera: Camera,
@@ -83,7 +96,9 @@ def splat_experts(
         colors = [frame_colors(inputs[k].frame, camera) for k in members]
         width = max(c.shape[1] for c in colors)
         frames = [
-            inputs[k].frame.with_colors(torch.nn.functional.pad(c, (0, width - c.shape[1])))
+            near_culled(inputs[k].frame, camera, inputs[k].near).with_colors(
+                torch.nn.functional.pad(c, (0, width - c.shape[1]))
+            )
             for k, c in zip(members, colors, strict=True)
         ]
         backgrounds = torch.stack(

@@ -258,7 +258,7 @@ def test_world_frame_rules_stay_on_their_dataset():
     stand_in = config_for("stg", "synthetic:n3v_like")
     assert stand_in.config.strategy.prune_z_below is None and stand_in.frame_overrides
     assert config_for("stg", "panoptic:basketball").config.strategy.prune_z_below is None
-    assert config_for("ex4dgs", "synthetic:n3v_like").config.near is None
+    assert config_for("ex4dgs", "synthetic:n3v_like").config.near == 0.2  # the code's default
     assert config_for("ex4dgs", "n3v:sear_steak").config.near == 4.0
 
 

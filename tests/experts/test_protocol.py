@@ -33,3 +33,19 @@ def test_presets_name_every_dataset_config(name):
         assert isinstance(cls.from_preset(preset), cls), preset
     for entry in cls.DATASET_PRESETS.values():
         assert entry.preset in presets
+
+
+def test_near_planes_are_the_original_rasterizers():
+    """The 3DGS rasterizer culls at view depth <= 0.2 in every dataset; Ex4DGS's culls at its dataset's
+    near (N3V 4.0 in N3V's own frame, Technicolor 0.01, else 0.2)."""
+    from moegs.experts.base import NEAR_3DGS
+    from moegs.recipes import config_for
+
+    assert NEAR_3DGS == 0.2
+    for name in ("static", "mcmc", "deformable", "fourdgs", "grid4d", "ed3dgs", "stg", "mode"):
+        for scene in ("dnerf:mutant", "panoptic:basketball", "synthetic:n3v_like"):
+            assert config_for(name, scene, "paper").config.near == NEAR_3DGS, (name, scene)
+    assert config_for("ex4dgs", "panoptic:basketball", "paper").config.near == NEAR_3DGS
+    assert config_for("ex4dgs", "synthetic:n3v_like", "paper").config.near == NEAR_3DGS  # not N3V's frame
+    assert config_for("ex4dgs", "n3v:coffee_martini", "paper").config.near == 4.0
+    assert config_for("ex4dgs", "technicolor:Birthday", "paper").config.near == 0.01

@@ -118,6 +118,29 @@ def test_single_pass_equals_separate_renders(scene, experts):
     assert same_mode.passes == 1
 
 
+def test_an_expert_keeps_its_near_plane_in_a_shared_pass(scene):
+    """The rasterizer culls at the expert's near plane (``ExpertConfig.near``) in its own render; a shared
+    pass with an expert of another near plane gives the same image by zeroing those Gaussians' opacity."""
+    camera = scene.test[0].camera
+    near_expert, other = make_expert("static", scene), make_expert("mcmc", scene, 1)
+    assert near_expert.config.near == other.config.near == 0.2  # the 3DGS rasterizer's in_frustum
+    w2c = camera.world_to_camera
+    with torch.no_grad():
+        depth = near_expert.frame(camera.time).means @ w2c[2, :3] + w2c[2, 3]
+    cut = float(depth.median())
+    near_expert.config = replace(near_expert.config, near=cut)  # drops the nearer half of its Gaussians
+    inputs = expert_inputs([near_expert, other], camera, scene.background)
+    with torch.no_grad():
+        one = splat_experts(inputs, camera)
+        image, out, _ = near_expert.render(camera, scene.background, return_stats=True)
+        full = rasterize(inputs[0].frame, camera, background=scene.background)
+    assert one.passes == 1
+    torch.testing.assert_close(one.images[0], image, atol=1e-5, rtol=0)
+    torch.testing.assert_close(one.images[1], other.render(camera, scene.background)[0], atol=1e-5, rtol=0)
+    assert not out.info["visible"][depth <= cut].any() and out.info["visible"][depth > cut].any()
+    assert (image - full.image).abs().max() > 0.05  # the near half was in view: culling it shows
+
+
 def test_mixed_colour_widths_are_padded_and_decoded(scene):
     """An STG expert with the full feature model (9 channels + decoder) renders in the same pass as RGB."""
     stg = make_expert("stg", scene)
