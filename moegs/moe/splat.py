@@ -24,6 +24,7 @@ from moegs.camera import Camera
 from moegs.experts.base import Expert, SplatInputs
 from moegs.gaussians import GaussianFrame
 from moegs.render import frame_colors, rasterize_multi
+from moegs.render.projection import camera_points
 
 
 @dataclass
@@ -64,8 +65,7 @@ def near_culled(frame: GaussianFrame, camera: Camera, near: float | None) -> Gau
     above the camera's): the Gaussians its rasterizer would cull composite nothing."""
     if near is None or near <= camera.near:
         return frame
-    w2c = camera.world_to_camera.to(frame.means)
-    depth = frame.means @ w2c[2, :3] + w2c[2, 3]  # [N]
+    depth = camera_points(frame.means, camera)[:, 2]  # [N], as the projection culls by it
     return replace(frame, opacities=torch.where(depth > near, frame.opacities, 0.0))
 
 

@@ -13,6 +13,7 @@ from moegs.experts import get_expert_class
 from moegs.moe import MoEGS, RouterConfig
 from moegs.moe.splat import expert_inputs, splat_experts
 from moegs.render import frame_colors, rasterize
+from moegs.render.projection import camera_points
 
 ROUTERS = ("vapr", "pixel", "volume")
 
@@ -124,9 +125,8 @@ def test_an_expert_keeps_its_near_plane_in_a_shared_pass(scene):
     camera = scene.test[0].camera
     near_expert, other = make_expert("static", scene), make_expert("mcmc", scene, 1)
     assert near_expert.config.near == other.config.near == 0.2  # the 3DGS rasterizer's in_frustum
-    w2c = camera.world_to_camera
     with torch.no_grad():
-        depth = near_expert.frame(camera.time).means @ w2c[2, :3] + w2c[2, 3]
+        depth = camera_points(near_expert.frame(camera.time).means, camera)[:, 2]
     cut = float(depth.median())
     near_expert.config = replace(near_expert.config, near=cut)  # drops the nearer half of its Gaussians
     inputs = expert_inputs([near_expert, other], camera, scene.background)
