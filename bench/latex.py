@@ -211,6 +211,13 @@ def caption(values: SpecValues, preset: BenchPreset) -> str:
                 "s: synthetic stand-in scene (numbers not comparable with the paper; the paper value "
                 "shown beside it is its Average)."
             )
+    averaged = values.plan.averaged_seeds()
+    if averaged:
+        parts.append(
+            "Mean over seeds: "
+            + ", ".join(f"{name} {seeds[0]}-{seeds[-1]}" for name, seeds in sorted(averaged.items()))
+            + "; claims within their seed spread are 'within noise' (report)."
+        )
     parts.append(
         "[x]: PSNR of the dynamic region (stand-ins: ground-truth dynamic mask; D-NeRF: object alpha; "
         "Panoptic: foreground masks)."

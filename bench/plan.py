@@ -47,6 +47,17 @@ class SpecPlan:
     def slots_of(self, row: str) -> list[Slot]:
         return [s for s in self.slots if s.row == row]
 
+    def averaged_seeds(self) -> dict[str, list[int]]:
+        """``{scene name: seeds}`` of the scenes whose printed values are means over several seeds (not
+        a stability run's, whose columns are min / max / average)."""
+        if self.spec.axis == "seeds":
+            return {}
+        seeds: dict[str, set[int]] = {}
+        for s in self.slots:
+            if s.scene is not None and s.task is not None:
+                seeds.setdefault(s.scene.name, set()).add(s.seed)
+        return {name: sorted(v) for name, v in seeds.items() if len(v) > 1}
+
     @property
     def uses_stand_in(self) -> bool:
         return any(not s.real for s in self.scenes)
@@ -107,6 +118,14 @@ def _variants(spec: Spec) -> list[tuple[str | None, float | None]]:
     return [(None, None)]
 
 
+def _scene_seeds(spec: Spec, scene: SceneRef, seeds: list[int], preset: BenchPreset) -> list[int]:
+    """The seeds a table trains on ``scene``: ``preset.real_scene_seeds`` on a real scene (their mean is
+    printed, their spread is the scene's noise), the spec's elsewhere and in figures and stability runs."""
+    if scene.real and not spec.figure and spec.axis != "seeds" and preset.real_scene_seeds > len(seeds):
+        return list(range(preset.real_scene_seeds))
+    return seeds
+
+
 def _slots(spec: Spec, row: Row, scenes: list[SceneRef], seeds: list[int], preset: BenchPreset) -> list[Slot]:
     if row.kind in NOT_COMPUTED:
         return [Slot(row.name, None, 0, None, None, row.kind)]
@@ -115,7 +134,7 @@ def _slots(spec: Spec, row: Row, scenes: list[SceneRef], seeds: list[int], prese
     out = []
     for scene in scenes:
         expert_config = get_dataset(scene.dataset).expert_config
-        for seed in seeds:
+        for seed in _scene_seeds(spec, scene, seeds, preset):
             for column, budget in _variants(spec):
                 params = {**row.params, "dataset": scene.dataset}
                 if budget is not None and budget != 1.0:

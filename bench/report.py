@@ -82,6 +82,9 @@ def _status(values: SpecValues, preset: BenchPreset) -> str:
     if not ok and pending and not failed:
         return f"not run yet ({len(pending)} row(s) pending)"
     parts = [f"reproduced at {scale} on {data}: {len(ok)}/{len(computable)} rows"]
+    averaged = values.plan.averaged_seeds()
+    if averaged:
+        parts += [f"{name}: mean of {len(seeds)} seeds" for name, seeds in sorted(averaged.items())]
     if ni:
         parts.append(f"{len(ni)} row(s) missing pieces")
     if failed:
@@ -227,20 +230,41 @@ def camera_markdown(experts: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def noise_markdown(noise: dict[str, Any]) -> list[str]:
+    """The seed spreads claims are judged against (``bench.signals.seed_noise``), a row per scene."""
+    fallback = noise.get("metrics") or {}
+    scenes = noise.get("scenes") or {}
+    if not scenes:
+        return ["- **Noise**: no row finished two seeds: claims are not noise-aware."]
+    lines = [
+        "- **Noise**: a claim is judged against the seed-to-seed spread (max - min over seeds of one row) "
+        "of its table's scenes: a scene's own where its cells were trained with several seeds, else the "
+        "largest spread measured on a stand-in"
+        + (
+            f" ({', '.join(noise.get('source') or [])}: PSNR {_num(fallback.get('PSNR'))} dB, dynamic-region "
+            f"PSNR {_num(fallback.get('PSNR dynamic'))} dB)"
+            if fallback
+            else " (none measured)"
+        )
+        + ". A claim whose margin is inside it is reported as 'within noise', not as held or failed.",
+        "",
+        "| scene | seeds | from | PSNR spread per row (dB) | largest | largest, dynamic region |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, entry in sorted(scenes.items()):
+        rows = ", ".join(f"{row} {_num(v.get('PSNR'))}" for row, v in entry["rows"].items())
+        metrics, label = entry["metrics"], name + ("" if entry["real"] else " (stand-in)")
+        lines.append(
+            f"| {label} | {entry['seeds']} | {', '.join(entry['source'])} | {rows} "
+            f"| {_num(metrics.get('PSNR'))} | {_num(metrics.get('PSNR dynamic'))} |"
+        )
+    return lines
+
+
 def signals_markdown(signals: dict[str, Any]) -> list[str]:
     """The run's motion, routing and noise evidence (``bench.signals``) as markdown lines."""
-    noise = signals.get("noise") or {}
-    spreads = noise.get("metrics") or {}
     lines = ["## Motion, routing and noise", ""]
-    if spreads:
-        lines.append(
-            f"- **Noise**: the largest seed-to-seed spread (max - min over seeds of one row) of the "
-            f"stability runs ({', '.join(noise.get('source') or [])}): PSNR {_num(spreads.get('PSNR'))} dB, "
-            f"dynamic-region PSNR {_num(spreads.get('PSNR dynamic'))} dB. A claim whose margin is inside "
-            "it is reported as 'within noise', not as held or failed."
-        )
-    else:
-        lines.append("- **Noise**: no stability run with two finished seeds: claims are not noise-aware.")
+    lines += noise_markdown(signals.get("noise") or {})
     experts = signals.get("experts") or []
     lines += motion_lines(experts)
     if experts:

@@ -49,10 +49,12 @@ def run_lengths(preset: BenchPreset, dataset: str) -> tuple[int, int]:
 
 
 def column_label(preset: BenchPreset, dataset: str) -> str:
-    """``standard (1/8 res., 6000 / 5000 it.)``: the preset, its resolution, expert / router iterations."""
+    """``standard (1/8 res., 6000 / 5000 it.)``: the preset, its resolution, expert / router iterations
+    (and ``, mean of 3 seeds`` where it trains several)."""
     scale = Fraction(preset.real_kwargs(dataset).get("resolution_scale", 1.0)).limit_denominator(64)
     experts, router = run_lengths(preset, dataset)
-    return f"{preset.name} ({scale} res., {experts} / {router} it.)"
+    seeds = f", mean of {preset.real_scene_seeds} seeds" if preset.real_scene_seeds > 1 else ""
+    return f"{preset.name} ({scale} res., {experts} / {router} it.{seeds})"
 
 
 @dataclass

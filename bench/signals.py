@@ -6,8 +6,10 @@
   budget);
 * ``routing_rows``: every MoE-GS cell's routing signal (``moegs.moe.winner_coherence`` of the winner map,
   and the share of dynamic / static pixels each expert wins);
-* ``seed_noise``: the seed-to-seed spread of the stability runs (the ``seeds``-axis specs): the largest
-  max - min over seeds of any row, per metric. Claims whose margin is inside it are "within noise";
+* ``seed_noise``: the seed-to-seed spread (max - min over seeds) per scene and row, of the stability runs
+  and of real-scene tables trained with several seeds; ``noise_for`` the spread a table's claims are
+  judged against (its scenes' own, or the stand-ins' where a scene has none). Claims whose margin is
+  inside it are "within noise";
 * ``compute_rows``: what the run's cells cost, as each result recorded it when it was computed (training
   of every build, once however many cells share it, and every evaluation).
 """
@@ -25,13 +27,14 @@ from bench.store import Workspace
 REGION_KEYS = {"full": "", "dynamic": "_dynamic", "static": "_static"}
 
 
-def _ok_results(plan: Plan, workspace: Workspace, kind: str | None):
-    """``(spec plan, slot, result)`` of every finished ``kind`` evaluation (None: any), each task once."""
+def _ok_results(plan: Plan, workspace: Workspace, kind: str | None, once: bool = True):
+    """``(spec plan, slot, result)`` of every finished ``kind`` evaluation (None: any), each task once
+    (``once=False``: in every slot that uses it)."""
     seen: set[str] = set()
     for sp in plan.specs:
         for slot in sp.slots:
             task = slot.task
-            if task is None or (kind is not None and task.kind != kind) or task.key in seen:
+            if task is None or (kind is not None and task.kind != kind) or (once and task.key in seen):
                 continue
             seen.add(task.key)
             path = workspace.result_path(task)
@@ -118,36 +121,65 @@ def routing_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
 
 
 def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
-    """The largest seed-to-seed spread (max - min over seeds) of any row of the ``seeds``-axis specs, per
-    metric name of ``bench.spec.METRICS`` that the cells report; ``{"metrics": {name: dB}, "source"}``.
-    Empty ``metrics`` when no stability run has two finished seeds."""
-    spreads: dict[str, float] = {}
-    sources = []
-    for sp in plan.specs:
-        if sp.spec.axis != "seeds":
+    """Seed-to-seed spreads (max - min over seeds) of every row that finished two or more seeds on a scene
+    (stability runs, and real-scene tables at presets with ``real_scene_seeds``), per metric name of
+    ``bench.spec.METRICS``::
+
+        {"scenes": {scene: {"real", "seeds", "source": [spec ids], "rows": {row: {name: dB}},
+                            "metrics": {name: dB, the largest over its rows}}},
+         "metrics": {name: dB}, "source": [spec ids]}
+
+    ``metrics`` (with its ``source``) is the largest spread measured on a stand-in: the noise of a scene
+    without repeated trainings of its own (``noise_for``). Empty when nothing has two finished seeds."""
+    per_seed: dict[tuple[str, str, str, str | None], dict[int, dict[str, Any]]] = {}
+    scenes: dict[str, dict[str, Any]] = {}
+    for sp, slot, result in _ok_results(plan, workspace, None, once=False):
+        key = (slot.scene.name, sp.spec.id, slot.row, slot.budget_column)
+        per_seed.setdefault(key, {})[slot.seed] = result["metrics"]
+    for (scene, spec_id, row, _column), results in per_seed.items():
+        if len(results) < 2:
             continue
-        sources.append(sp.spec.id)
-        by_row: dict[tuple[str, str], dict[int, dict[str, Any]]] = {}
-        for slot in sp.slots:
-            if slot.task is None or slot.scene is None:
+        entry = scenes.setdefault(
+            scene, {"real": _is_real(plan, scene), "seeds": 0, "source": [], "rows": {}, "metrics": {}}
+        )
+        entry["seeds"] = max(entry["seeds"], len(results))
+        if spec_id not in entry["source"]:
+            entry["source"].append(spec_id)
+        spreads = entry["rows"].setdefault(row, {})
+        for name, m in METRICS.items():
+            values = [r.get(m.key) for r in results.values()]
+            if any(v is None for v in values):
                 continue
-            path = workspace.result_path(slot.task)
-            try:
-                result = read_result(path) if path.is_file() else None
-            except ResultError:
-                continue
-            if result is None or result.get("status") != "ok":
-                continue
-            by_row.setdefault((slot.row, slot.scene.name), {})[slot.seed] = result["metrics"]
-        for per_seed in by_row.values():
-            if len(per_seed) < 2:
-                continue
-            for name, m in METRICS.items():
-                values = [r.get(m.key) for r in per_seed.values()]
-                if any(v is None for v in values):
-                    continue
-                spreads[name] = max(spreads.get(name, 0.0), max(values) - min(values))
-    return {"metrics": spreads, "source": sources}
+            spread = max(values) - min(values)
+            spreads[name] = max(spreads.get(name, 0.0), spread)
+            entry["metrics"][name] = max(entry["metrics"].get(name, 0.0), spread)
+    fallback: dict[str, float] = {}
+    sources: list[str] = []
+    for entry in scenes.values():
+        if entry["real"]:
+            continue
+        sources += [s for s in entry["source"] if s not in sources]
+        for name, spread in entry["metrics"].items():
+            fallback[name] = max(fallback.get(name, 0.0), spread)
+    return {"scenes": scenes, "metrics": fallback, "source": sources}
+
+
+def _is_real(plan: Plan, scene_name: str) -> bool:
+    return any(s.real for sp in plan.specs for s in sp.scenes if s.name == scene_name)
+
+
+def noise_for(noise: dict[str, Any], scene_names: list[str]) -> dict[str, float]:
+    """The noise claims over ``scene_names`` are judged against, per metric name: for each metric the
+    largest of each scene's own spread (``seed_noise``), or the stand-ins' where a scene has none."""
+    fallback = noise.get("metrics") or {}
+    out: dict[str, float] = {}
+    for scene in scene_names:
+        own = (noise.get("scenes") or {}).get(scene, {}).get("metrics") or {}
+        for name in {*fallback, *own}:
+            spread = own.get(name, fallback.get(name))
+            if spread is not None:
+                out[name] = max(out.get(name, 0.0), spread)
+    return out
 
 
 def _build_label(artifact: dict[str, Any]) -> str:

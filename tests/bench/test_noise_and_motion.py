@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from bench.claims import FAILED, HELD, NA, NOISE, better, exceeds, monotone, order, within
+from bench.claims import FAILED, HELD, NA, NOISE, better, evaluate, exceeds, monotone, order, within
 from bench.registry import get_spec
 from bench.spec import Claim
 from moegs.moe import region_shares, winner_coherence
@@ -158,3 +158,82 @@ def test_report_states_what_the_cells_cost():
     assert "## What the cells cost" in lines and "| expert | stg | 2 | 3.0 |" in lines
     assert "| moe | 4 | 0.5 |" in lines and any("**3.5 minutes**" in line for line in lines)
     assert compute_markdown({}) == [] and compute_markdown({"builds": [], "evaluations": []}) == []
+
+
+def _scenes_with_real_panoptic(dataset, preset, only=()):
+    """``resolve_scenes`` as if basketball were under MOEGS_DATA and nothing else were."""
+    from bench.datasets import get_dataset
+    from bench.scenes import SceneRef
+
+    if dataset == "panoptic":
+        return [SceneRef("panoptic:basketball", "panoptic", "Basketball", True)]
+    return [SceneRef(f"synthetic:{get_dataset(dataset).stand_in}", dataset, None, False)]
+
+
+def _write_psnr(ws, task, psnr: float) -> None:
+    from bench.results import SCHEMA, write_result
+
+    result = {
+        "schema": SCHEMA,
+        "status": "ok",
+        "key": task.key,
+        "task": task.to_dict(),
+        "metrics": {"psnr": psnr},
+    }
+    write_result(ws.result_path(task), {**result, "versions": {}, "timings": {}})
+
+
+def test_real_scene_tables_average_several_seeds_and_judge_claims_by_their_own_spread(tmp_path, monkeypatch):
+    from dataclasses import replace
+
+    import bench.plan
+    from bench.latex import caption
+    from bench.presets import get_preset
+    from bench.report import noise_markdown
+    from bench.signals import noise_for, seed_noise
+    from bench.store import Workspace
+    from bench.values import SpecValues
+
+    monkeypatch.setattr(bench.plan, "resolve_scenes", _scenes_with_real_panoptic)
+    quick = get_preset("quick")
+    plan = bench.plan.make_plan(["tab16", "tab09", "fig_gates_panoptic"], quick)
+    tab16, tab09, figure = plan.specs
+    assert {s.seed for s in tab16.slots} == {0, 1, 2} and tab16.averaged_seeds() == {
+        "panoptic:basketball": [0, 1, 2]
+    }
+    assert {s.seed for s in figure.slots} == {0}  # figures draw seed 0 only
+    assert tab09.averaged_seeds() == {}  # a stability run prints min / max / average, not a mean
+    standard = bench.plan.make_plan(["tab16"], get_preset("standard")).specs[0]
+    assert {s.seed for s in standard.slots} == {0}
+    # the number of seeds chooses cells; it is not part of any cell's key
+    assert replace(quick, real_scene_seeds=7).to_dict() == quick.to_dict()
+
+    ws = Workspace(tmp_path)
+    psnr = {
+        "4DGaussians": (18.0, 19.0, 20.5),
+        "Grid4D": (21.0, 22.0, 21.5),
+        "MoE-GS (N=2)": (22.0, 21.5, 22.5),
+    }
+    for slot in tab16.slots:
+        _write_psnr(ws, slot.task, psnr[slot.row][slot.seed])
+    for slot in tab09.slots:  # the stand-in's stability runs: 0.5 dB apart at most
+        _write_psnr(ws, slot.task, 25.0 + 0.25 * slot.seed)
+    noise = seed_noise(plan, ws)
+    basketball = noise["scenes"]["panoptic:basketball"]
+    assert basketball["real"] and basketball["seeds"] == 3 and basketball["source"] == ["tab16"]
+    assert basketball["rows"]["4DGaussians"]["PSNR"] == pytest.approx(2.5)
+    assert basketball["metrics"]["PSNR"] == pytest.approx(2.5)
+    assert noise["metrics"]["PSNR"] == pytest.approx(0.5) and noise["source"] == ["tab09"]
+    # each table is judged against its own scenes' spread; a scene without repeated seeds gets the stand-ins'
+    assert noise_for(noise, ["panoptic:basketball"])["PSNR"] == pytest.approx(2.5)
+    assert noise_for(noise, ["synthetic:dnerf_like"])["PSNR"] == pytest.approx(0.5)
+    assert noise_for({}, ["panoptic:basketball"]) == {}
+
+    values = SpecValues(tab16, ws, noise_for(noise, ["panoptic:basketball"]))
+    assert values.get("MoE-GS (N=2)", "Basketball", "PSNR") == pytest.approx(22.0)  # the mean of 3 seeds
+    statuses = {c.id: evaluate(c, values).status for c in tab16.spec.claims}
+    assert statuses == {"n2-every-scene": NOISE, "n2-best-average": NOISE}  # 0.25 dB over Grid4D < 2.5 dB
+    assert "Mean over seeds: panoptic:basketball 0-2" in caption(values, quick)
+    lines = noise_markdown(noise)
+    assert any(line.startswith("| panoptic:basketball | 3 | tab16 | 4DGaussians 2.50") for line in lines)
+    assert any("(stand-in) | 3 | tab09 |" in line for line in lines)
