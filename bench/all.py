@@ -147,12 +147,12 @@ def write_outputs(
     from bench.report import spec_report, write_report
     from bench.sidebyside import compare
     from bench.sidebyside import write_latex as write_comparison
-    from bench.signals import compute_rows, expert_rows, noise_for, routing_rows, seed_noise
+    from bench.signals import compute_rows, expert_rows, noise_for, routing_rows, run_noise
     from bench.values import SpecValues
 
     reports, written, comparisons = [], [], []
     header = f"preset {plan.preset.name}, generated {time.strftime('%Y-%m-%d %H:%M')}"
-    noise = seed_noise(plan, workspace)
+    noise = run_noise(plan, workspace)
     for sp in plan.specs:
         values = SpecValues(sp, workspace, noise_for(noise, [s.name for s in sp.scenes]))
         latex, figures = None, []

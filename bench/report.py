@@ -239,7 +239,8 @@ def noise_markdown(noise: dict[str, Any]) -> list[str]:
     lines = [
         "- **Noise**: a claim is judged against the seed-to-seed spread (max - min over seeds of one row) "
         "of its table's scenes: a scene's own where its cells were trained with several seeds, else the "
-        "largest spread measured on a stand-in"
+        "largest spread measured on a stand-in; a scene this run trains once borrows the quick run's "
+        "spread on it where there is one (marked)"
         + (
             f" ({', '.join(noise.get('source') or [])}: PSNR {_num(fallback.get('PSNR'))} dB, dynamic-region "
             f"PSNR {_num(fallback.get('PSNR dynamic'))} dB)"
@@ -254,11 +255,13 @@ def noise_markdown(noise: dict[str, Any]) -> list[str]:
     for name, entry in sorted(scenes.items()):
         rows = ", ".join(f"{row} {_num(v.get('PSNR'))}" for row, v in entry["rows"].items())
         metrics, label = entry["metrics"], name + ("" if entry["real"] else " (stand-in)")
+        borrowed = entry.get("preset") not in (None, noise.get("preset"))
+        source = ", ".join(entry["source"]) + (f" ({entry['preset']} run)" if borrowed else "")
         lines.append(
-            f"| {label} | {entry['seeds']} | {', '.join(entry['source'])} | {rows} "
+            f"| {label} | {entry['seeds']} | {source} | {rows} "
             f"| {_num(metrics.get('PSNR'))} | {_num(metrics.get('PSNR dynamic'))} |"
         )
-    return lines
+    return [*lines, ""]
 
 
 def signals_markdown(signals: dict[str, Any]) -> list[str]:

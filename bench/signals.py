@@ -19,7 +19,8 @@ from __future__ import annotations
 from typing import Any
 
 from bench.cells._eval import REGIME_PREFIX
-from bench.plan import Plan
+from bench.plan import Plan, make_plan
+from bench.presets import get_preset
 from bench.results import ResultError, read_result
 from bench.spec import METRICS
 from bench.store import Workspace
@@ -140,7 +141,15 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
         if len(results) < 2:
             continue
         entry = scenes.setdefault(
-            scene, {"real": _is_real(plan, scene), "seeds": 0, "source": [], "rows": {}, "metrics": {}}
+            scene,
+            {
+                "real": _is_real(plan, scene),
+                "preset": plan.preset.name,
+                "seeds": 0,
+                "source": [],
+                "rows": {},
+                "metrics": {},
+            },
         )
         entry["seeds"] = max(entry["seeds"], len(results))
         if spec_id not in entry["source"]:
@@ -161,7 +170,27 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
         sources += [s for s in entry["source"] if s not in sources]
         for name, spread in entry["metrics"].items():
             fallback[name] = max(fallback.get(name, 0.0), spread)
-    return {"scenes": scenes, "metrics": fallback, "source": sources}
+    return {"preset": plan.preset.name, "scenes": scenes, "metrics": fallback, "source": sources}
+
+
+NOISE_PROXY = "quick"
+"""The preset whose repeated seeds stand in for another preset's noise on a scene it trains once."""
+
+
+def run_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
+    """``seed_noise`` of ``plan``, plus, for each of its scenes with no spread of its own, the spread the
+    ``NOISE_PROXY`` preset measured on that scene with the same specs in the same workspace (its entry
+    keeps ``"preset"``: the report says it was borrowed). A longer run's noise is not measured by a
+    shorter one's, but a claim decided by less than the quick run's spread is not decided."""
+    noise = seed_noise(plan, workspace)
+    if plan.preset.name == NOISE_PROXY:
+        return noise
+    proxy = seed_noise(make_plan([sp.spec for sp in plan.specs], get_preset(NOISE_PROXY)), workspace)
+    wanted = {s.name for sp in plan.specs for s in sp.scenes}
+    for name, entry in proxy["scenes"].items():
+        if name in wanted:
+            noise["scenes"].setdefault(name, entry)
+    return noise
 
 
 def _is_real(plan: Plan, scene_name: str) -> bool:

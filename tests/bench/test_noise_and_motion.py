@@ -190,7 +190,7 @@ def test_real_scene_tables_average_several_seeds_and_judge_claims_by_their_own_s
     from bench.latex import caption
     from bench.presets import get_preset
     from bench.report import noise_markdown
-    from bench.signals import noise_for, seed_noise
+    from bench.signals import noise_for, run_noise, seed_noise
     from bench.store import Workspace
     from bench.values import SpecValues
 
@@ -237,3 +237,11 @@ def test_real_scene_tables_average_several_seeds_and_judge_claims_by_their_own_s
     lines = noise_markdown(noise)
     assert any(line.startswith("| panoptic:basketball | 3 | tab16 | 4DGaussians 2.50") for line in lines)
     assert any("(stand-in) | 3 | tab09 |" in line for line in lines)
+
+    # standard trains basketball once: its claims borrow the quick run's spread there, and say so
+    standard_plan = bench.plan.make_plan(["tab16"], get_preset("standard"))
+    assert seed_noise(standard_plan, ws)["scenes"] == {}
+    borrowed = run_noise(standard_plan, ws)
+    assert borrowed["scenes"]["panoptic:basketball"]["preset"] == "quick"
+    assert noise_for(borrowed, ["panoptic:basketball"])["PSNR"] == pytest.approx(2.5)
+    assert any("| tab16 (quick run) |" in line for line in noise_markdown(borrowed))
