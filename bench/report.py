@@ -21,6 +21,7 @@ from typing import Any
 from bench.claims import FAILED, HELD, NA, NOISE, evaluate
 from bench.keys import code_version, git_commit
 from bench.presets import BenchPreset
+from bench.signals import NOISE_PROXY
 from bench.values import SpecValues
 
 
@@ -239,8 +240,8 @@ def noise_markdown(noise: dict[str, Any]) -> list[str]:
     lines = [
         "- **Noise**: a claim is judged against the seed-to-seed spread (max - min over seeds of one row) "
         "of its table's scenes: a scene's own where its cells were trained with several seeds, else the "
-        "largest spread measured on a stand-in; a scene this run trains once borrows the quick run's "
-        "spread on it where there is one (marked)"
+        "largest spread measured on a stand-in; a scene this run trains once borrows the "
+        f"{NOISE_PROXY} run's spread on it where there is one (marked)"
         + (
             f" ({', '.join(noise.get('source') or [])}: PSNR {_num(fallback.get('PSNR'))} dB, dynamic-region "
             f"PSNR {_num(fallback.get('PSNR dynamic'))} dB)"

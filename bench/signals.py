@@ -126,15 +126,18 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
     (stability runs, and real-scene tables at presets with ``real_scene_seeds``), per metric name of
     ``bench.spec.METRICS``::
 
-        {"scenes": {scene: {"real", "seeds", "source": [spec ids], "rows": {row: {name: dB}},
+        {"preset": plan's preset,
+         "scenes": {scene: {"real", "preset", "seeds", "source": [spec ids], "rows": {row: {name: dB}},
                             "metrics": {name: dB, the largest over its rows}}},
          "metrics": {name: dB}, "source": [spec ids]}
 
     ``metrics`` (with its ``source``) is the largest spread measured on a stand-in: the noise of a scene
     without repeated trainings of its own (``noise_for``). Empty when nothing has two finished seeds."""
     per_seed: dict[tuple[str, str, str, str | None], dict[int, dict[str, Any]]] = {}
+    real: dict[str, bool] = {}
     scenes: dict[str, dict[str, Any]] = {}
     for sp, slot, result in _ok_results(plan, workspace, None, once=False):
+        real[slot.scene.name] = slot.scene.real
         key = (slot.scene.name, sp.spec.id, slot.row, slot.budget_column)
         per_seed.setdefault(key, {})[slot.seed] = result["metrics"]
     for (scene, spec_id, row, _column), results in per_seed.items():
@@ -143,7 +146,7 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
         entry = scenes.setdefault(
             scene,
             {
-                "real": _is_real(plan, scene),
+                "real": real[scene],
                 "preset": plan.preset.name,
                 "seeds": 0,
                 "source": [],
@@ -191,10 +194,6 @@ def run_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
         if name in wanted:
             noise["scenes"].setdefault(name, entry)
     return noise
-
-
-def _is_real(plan: Plan, scene_name: str) -> bool:
-    return any(s.real for sp in plan.specs for s in sp.scenes if s.name == scene_name)
 
 
 def noise_for(noise: dict[str, Any], scene_names: list[str]) -> dict[str, float]:
