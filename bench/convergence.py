@@ -8,8 +8,10 @@ Each cell trains one expert on the scene with the **quick recipe's schedules sca
 test view: full image, dynamic and static regions and, below full resolution, the render upsampled
 (bicubic) to the dataset's native resolution against the native ground truth, as a paper-resolution
 figure. Cells are cached as JSON under ``--workspace`` (atomic writes): an interrupted study resumes
-and a finished cell is never recomputed unless ``--force``. The figure (PSNR against iterations and
-against minutes on this machine) and a markdown table go to ``--out``.
+and a finished cell is never recomputed unless ``--force``, or unless the library code the cell runs
+changed (``cell_code_version``, the bench's rule for its own cells): a study's table is always of one
+library version, which its README footer names. The figure (PSNR against iterations and against
+minutes on this machine) and a markdown table go to ``--out``.
 
 The scaling rule is ``bench.schedules``'s (the ``standard`` bench preset trains with the same).
 """
@@ -25,10 +27,22 @@ from pathlib import Path
 from bench.schedules import QUICK_ITERATIONS, scaled_overrides
 
 
+def cell_code_version(expert: str, scene_name: str) -> str:
+    """Hash of the library modules a cell training ``expert`` on ``scene_name`` can import (the bench's
+    expert cells run the same training and evaluation code)."""
+    from bench.codedeps import task_code_version
+
+    return task_code_version("expert", frozenset({expert}), scene_name.partition(":")[0])
+
+
 def run_cell(expert: str, scene_name: str, resolution: float, iterations: int, progress: bool) -> dict:
     """Train and score one cell (see the module docstring); a JSON-ready record."""
+    import torch
+
     from bench.cells._eval import psnr_upsampled
     from bench.cells._lib import expert_renderer
+    from bench.keys import git_commit
+    from bench.readme import machine_line
     from moegs.data import load_scene
     from moegs.recipes import config_for
     from moegs.train.entry import train_recipe
@@ -61,6 +75,10 @@ def run_cell(expert: str, scene_name: str, resolution: float, iterations: int, p
         "lpips": test["lpips"],
         "psnr_native": None,
         "recipe": recipe.provenance(),
+        "code_version": cell_code_version(expert, scene_name),
+        "git": git_commit().get("commit"),
+        "machine": machine_line(),
+        "threads": torch.get_num_threads(),
     }
     if resolution < 1.0:
         native = load_scene(scene_name, background=recipe.background, resolution_scale=1.0)
@@ -84,20 +102,26 @@ def run_study(
     force: bool = False,
     progress: bool = True,
 ) -> list[dict]:
-    """Every (expert, resolution, N) cell not beyond ``limits[resolution]``, cached under ``workspace``."""
+    """Every (expert, resolution, N) cell not beyond ``limits[resolution]``, cached under ``workspace``;
+    a cached cell of other library code is recomputed."""
     from moegs.io import read_json, write_json
 
     records = []
     for resolution in resolutions:
         for expert in experts:
+            version = cell_code_version(expert, scene)
             for n in iterations:
                 if n > (limits or {}).get(resolution, math.inf):
                     continue
                 path = cell_path(workspace, expert, scene, resolution, n)
+                why = "computing"
                 if path.is_file() and not force:
-                    records.append(read_json(path, "convergence cell"))
-                    continue
-                print(f"[convergence] {expert} on {scene} at {resolution:g} x, {n} iterations", flush=True)
+                    cached = read_json(path, "convergence cell")
+                    if cached.get("code_version") == version:
+                        records.append(cached)
+                        continue
+                    why = f"recomputing (cached cell of library {cached.get('code_version', 'unknown')})"
+                print(f"[convergence] {why}: {expert} on {scene} at {resolution:g}x, N = {n}", flush=True)
                 records.append(run_cell(expert, scene, resolution, n, progress))
                 write_json(path, records[-1])
     return records
@@ -195,6 +219,19 @@ def paper_values(scene: str, experts: list[str]) -> dict[str, float]:
     return out
 
 
+def provenance(records: list[dict]) -> str:
+    """The library versions, commits and thread counts the cells ran with, in words."""
+
+    def distinct(key: str) -> str:
+        values = sorted({str(r.get(key) or "unrecorded") for r in records})
+        return ", ".join(v[:10] if key == "git" else v for v in values)
+
+    return (
+        f"library code version {distinct('code_version')} (git {distinct('git')}), "
+        f"{distinct('threads')} torch thread(s) per cell"
+    )
+
+
 def _floats(text: str) -> list[float]:
     return [float(x) for x in text.split(",") if x.strip()]
 
@@ -211,6 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--force", action="store_true", help="recompute finished cells")
     p.add_argument("--readme", type=Path, help="also rewrite this README's results:<section> section")
     p.add_argument("--section", default="convergence", help="README section (one per scene studied)")
+    p.add_argument("--threads", type=int, help="torch threads (default: torch's)")
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
     try:
@@ -220,11 +258,27 @@ def main(argv: list[str] | None = None) -> int:
         limits = {float(k): int(v) for k, v in (item.split("=", 1) for item in args.limit)}
         for expert in experts:
             scaled_overrides(expert, args.scene, QUICK_ITERATIONS)  # unknown experts fail before any work
+        if args.threads is not None and args.threads < 1:
+            raise ValueError(f"--threads must be >= 1, got {args.threads}")
     except ValueError as err:
         p.exit(2, f"bench.convergence: {err}\n")
-    records = run_study(
-        args.scene, experts, iterations, resolutions, args.workspace, limits, args.force, not args.no_progress
-    )
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(args.threads or threads)
+    try:
+        records = run_study(
+            args.scene,
+            experts,
+            iterations,
+            resolutions,
+            args.workspace,
+            limits,
+            args.force,
+            not args.no_progress,
+        )
+    finally:
+        torch.set_num_threads(threads)
     paper = paper_values(args.scene, experts)
     stem = args.scene.replace(":", "_")
     plot(records, paper, f"Convergence on {args.scene}", args.out / f"{stem}.png")
@@ -241,8 +295,8 @@ def main(argv: list[str] | None = None) -> int:
         command = "python -m bench.convergence " + " ".join(argv if argv is not None else sys.argv[1:])
         body = (
             f"![convergence on {args.scene}]({figure})\n\n{table}\n\nGenerated by `{command}` on "
-            f"{machine_line()}; minutes are wall-clock on that machine (training, loading and evaluation); "
-            "'paper' is the MoE-GS paper's value at full resolution and schedule."
+            f"{machine_line()}; {provenance(records)}; minutes are wall-clock on that machine (training, "
+            "loading and evaluation); 'paper' is the MoE-GS paper's value at full resolution and schedule."
         )
         update_readme(args.readme, args.section, body)
     return 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
+import torch
 
 from bench import convergence
 from bench.report import convergence_markdown
@@ -20,8 +21,10 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     readme.write_text("# x\n<!-- results:convergence -->\nSTALE-BODY\n<!-- /results:convergence -->\n")
     args = ["--scene", SCENE, "--experts", "static", "--iterations", "10,20", "--resolutions", "0.0625",
             "--workspace", str(tmp_path / "ws"), "--out", str(out), "--no-progress",
-            "--readme", str(readme)]  # fmt: skip
+            "--readme", str(readme), "--threads", "1"]  # fmt: skip
+    threads = torch.get_num_threads()
     assert convergence.main(args) == 0
+    assert torch.get_num_threads() == threads  # --threads holds for the study only
     summary = json.loads((out / "dnerf_mutant.json").read_text())
     cells = summary["cells"]
     assert [c["iterations"] for c in cells] == [10, 20]
@@ -30,6 +33,7 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
         assert c["psnr"] > 10 and c["psnr_dynamic"] is not None and c["psnr_native"] > 10
         assert c["motion_r2"] is None  # D-NeRF's test views never repeat a camera
         assert c["recipe"]["overrides"]["train.iterations"] == c["iterations"]
+        assert c["code_version"] == convergence.cell_code_version("static", SCENE) and c["threads"] == 1
     assert (out / "dnerf_mutant.png").stat().st_size > 10_000
     assert "| static | 0.0625 (50x50) | 10 |" in (out / "dnerf_mutant.md").read_text()
 
@@ -39,6 +43,8 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
         and "![convergence on dnerf:mutant](reports/convergence/dnerf_mutant.png)" in written
     )
     assert "| static | 0.0625 (50x50) | 20 |" in written and "python -m bench.convergence --scene" in written
+    version = cells[0]["code_version"]
+    assert f"library code version {version} (git " in written and "1 torch thread(s) per cell" in written
     section = "\n".join(convergence_markdown(tmp_path / "reports"))
     assert "![dnerf_mutant](convergence/dnerf_mutant.png)" in section and "| static | 0.0625" in section
 
@@ -50,6 +56,26 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     readme.write_text(written + "<!-- results:convergence-b -->\n<!-- /results:convergence-b -->\n")
     assert convergence.main([*args, "--section", "convergence-b"]) == 0  # one README section per scene
     assert readme.read_text().count("![convergence on dnerf:mutant]") == 2
+
+    # a cell cached by other library code is recomputed, the others are reused
+    cell = tmp_path / "ws" / "dnerf_mutant" / "static-r0.0625-n20.json"
+    cell.write_text(cell.read_text().replace(version, "0ther1ibrary0000"))
+    recomputed = []
+
+    def fake_training(expert, scene, resolution, iterations, progress):
+        recomputed.append(iterations)
+        return {**cells[1], "psnr": 11.0}
+
+    monkeypatch.setattr(convergence, "run_cell", fake_training)
+    assert convergence.main(args) == 0
+    assert recomputed == [20] and "| static | 0.0625 (50x50) | 20 | " in readme.read_text()
+    assert json.loads(cell.read_text())["psnr"] == 11.0
+
+
+def test_cli_rejects_a_thread_count_below_one(capsys):
+    with pytest.raises(SystemExit) as err:
+        convergence.main(["--experts", "static", "--threads", "0", "--workspace", "/nonexistent"])
+    assert err.value.code == 2 and "--threads must be >= 1, got 0" in capsys.readouterr().err
 
 
 def test_cli_rejects_an_expert_without_a_schedule_table(capsys):
