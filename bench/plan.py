@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from bench.cells import NOT_COMPUTED, kind_module, missing_pieces
 from bench.datasets import get_dataset
 from bench.presets import BenchPreset
-from bench.registry import get_spec
+from bench.registry import get_spec, list_specs
 from bench.scenes import SceneRef, load_kwargs, resolve_scenes
 from bench.spec import Row, Spec
 from bench.tasks import Task
@@ -118,15 +118,29 @@ def _variants(spec: Spec) -> list[tuple[str | None, float | None]]:
     return [(None, None)]
 
 
-def _scene_seeds(spec: Spec, scene: SceneRef, seeds: list[int], preset: BenchPreset) -> list[int]:
-    """The seeds a table trains on ``scene``: ``preset.real_scene_seeds`` on a real scene (their mean is
-    printed, their spread is the scene's noise), the spec's elsewhere and in figures and stability runs."""
-    if scene.real and not spec.figure and spec.axis != "seeds" and preset.real_scene_seeds > len(seeds):
-        return list(range(preset.real_scene_seeds))
-    return seeds
+def stability_scenes(preset: BenchPreset) -> set[str]:
+    """Names of the scenes whose seed spread a stability run (a spec on the ``seeds`` axis) measures."""
+    out: set[str] = set()
+    for spec_id in list_specs("tables"):
+        spec = get_spec(spec_id)
+        if spec.axis == "seeds" and spec.dataset:
+            out.update(s.name for s in resolve_scenes(spec.dataset, preset, spec.scenes))
+    return out
 
 
-def _slots(spec: Spec, row: Row, scenes: list[SceneRef], seeds: list[int], preset: BenchPreset) -> list[Slot]:
+def _scene_seeds(
+    spec: Spec, scene: SceneRef, seeds: list[int], preset: BenchPreset, measured: set[str]
+) -> list[int]:
+    """The seeds a table trains on ``scene``: ``preset.scene_seeds`` where no stability run measures the
+    scene's spread (``measured``: every real scene, a stand-in without one; their mean is printed, their
+    spread is the scene's noise), the spec's elsewhere and in figures and stability runs."""
+    repeat = scene.name not in measured and not spec.figure and spec.axis != "seeds"
+    return list(range(preset.scene_seeds)) if repeat and preset.scene_seeds > len(seeds) else seeds
+
+
+def _slots(
+    spec: Spec, row: Row, scenes: list[SceneRef], seeds: list[int], preset: BenchPreset, measured: set[str]
+) -> list[Slot]:
     if row.kind in NOT_COMPUTED:
         return [Slot(row.name, None, 0, None, None, row.kind)]
     gone = missing_pieces(row.kind, dict(row.params))
@@ -134,7 +148,7 @@ def _slots(spec: Spec, row: Row, scenes: list[SceneRef], seeds: list[int], prese
     out = []
     for scene in scenes:
         expert_config = get_dataset(scene.dataset).expert_config
-        for seed in _scene_seeds(spec, scene, seeds, preset):
+        for seed in _scene_seeds(spec, scene, seeds, preset, measured):
             for column, budget in _variants(spec):
                 params = {**row.params, "dataset": scene.dataset}
                 if budget is not None and budget != 1.0:
@@ -157,8 +171,9 @@ def plan_spec(spec: Spec, preset: BenchPreset) -> SpecPlan:
     scenes = resolve_scenes(spec.dataset, preset, spec.scenes) if spec.dataset else []
     seeds = list(range(preset.seeds)) if spec.axis == "seeds" else list(spec.seeds)
     sp = SpecPlan(spec, scenes, seeds)
+    measured = stability_scenes(preset) if preset.scene_seeds > len(seeds) else set()
     for row in spec.rows:
-        sp.slots += _slots(spec, row, scenes, seeds, preset)
+        sp.slots += _slots(spec, row, scenes, seeds, preset, measured)
     return sp
 
 

@@ -32,10 +32,11 @@ class BenchPreset:
         train_steps: override of every expert's training iterations (``None``: the expert preset's).
         router_steps / mode_steps / distill_steps: same for router, MoDE and distillation training.
         seeds: number of repeated trainings on the ``seeds`` axis (Table IX).
-        real_scene_seeds: a table's cells on a real scene train this many seeds (0, 1, ...; at least the
-            spec's): the table prints their mean, and that scene's seed spread is the noise its claims
-            are judged against (``bench.signals.seed_noise``). It chooses which cells run, not what a
-            cell computes, so it is not part of any cell key.
+        scene_seeds: a table's cells on a scene that no stability run (``seeds`` axis) trains, i.e. every
+            real scene and a stand-in without one, train this many seeds (0, 1, ...; at least the spec's):
+            the table prints their mean, and that scene's seed spread is the noise its claims are judged
+            against (``bench.signals.seed_noise``). It chooses which cells run, not what a cell
+            computes, so it is not part of any cell key.
         test_views: evaluate at most this many test views, evenly spaced (``None``: all).
         speed_views / speed_warmup / speed_repeats: the FPS protocol (``moegs.metrics.speed``).
         metric_profile: ``moegs.metrics`` profile name used for every number.
@@ -78,7 +79,7 @@ class BenchPreset:
     real_only: bool = False
     native_psnr: bool = False
     """Also score real scenes below native resolution upsampled to it (``psnr_native``)."""
-    real_scene_seeds: int = 1
+    scene_seeds: int = 1
 
     def to_dict(self) -> dict[str, Any]:
         """Every field except the ``PLANNING_FIELDS`` and the ``LATER_FIELDS`` left at their default: a
@@ -108,7 +109,7 @@ class BenchPreset:
 
 LATER_FIELDS = ("schedule_iterations", "router_scale", "real_only", "native_psnr")
 """Fields added after results were cached; omitted from ``to_dict`` at their default."""
-PLANNING_FIELDS = ("real_scene_seeds",)
+PLANNING_FIELDS = ("scene_seeds",)
 """Fields that choose which cells run, never what one computes; never in ``to_dict``."""
 
 CPU_REAL_SCENES: dict[str, dict[str, Any]] = {
@@ -134,7 +135,7 @@ QUICK = BenchPreset(
     seeds=3,
     # Real scenes' seed spread is several times the stand-ins' (basketball: 0.8-3.2 dB over 3 seeds at
     # quick), so their tables print a 3-seed mean judged against their own spread.
-    real_scene_seeds=3,
+    scene_seeds=3,
     test_views=8,
     speed_views=2,
     speed_warmup=1,
@@ -171,7 +172,7 @@ STANDARD = replace(
     checkpoint_every=1000,
     real_only=True,
     native_psnr=True,
-    real_scene_seeds=1,  # one standard basketball build is about half an hour
+    scene_seeds=1,  # one standard basketball build is about half an hour
 )
 """``quick`` with the real scenes trained longer (see the fields it replaces)."""
 

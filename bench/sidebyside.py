@@ -53,7 +53,7 @@ def column_label(preset: BenchPreset, dataset: str) -> str:
     (and ``, mean of 3 seeds`` where it trains several)."""
     scale = Fraction(preset.real_kwargs(dataset).get("resolution_scale", 1.0)).limit_denominator(64)
     experts, router = run_lengths(preset, dataset)
-    seeds = f", mean of {preset.real_scene_seeds} seeds" if preset.real_scene_seeds > 1 else ""
+    seeds = f", mean of {preset.scene_seeds} seeds" if preset.scene_seeds > 1 else ""
     return f"{preset.name} ({scale} res., {experts} / {router} it.{seeds})"
 
 

@@ -123,7 +123,7 @@ def routing_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
 
 def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
     """Seed-to-seed spreads (max - min over seeds) of every row that finished two or more seeds on a scene
-    (stability runs, and real-scene tables at presets with ``real_scene_seeds``), per metric name of
+    (stability runs, and the tables of scenes without one at presets with ``scene_seeds``), per metric name of
     ``bench.spec.METRICS``::
 
         {"preset": plan's preset,
