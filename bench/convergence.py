@@ -101,12 +101,14 @@ def run_study(
     limits: dict[float, int] | None = None,
     force: bool = False,
     progress: bool = True,
-) -> list[dict]:
+    run: bool = True,
+) -> tuple[list[dict], list[str]]:
     """Every (expert, resolution, N) cell not beyond ``limits[resolution]``, cached under ``workspace``;
-    a cached cell of other library code is recomputed."""
+    a cached cell of other library code is recomputed. With ``run=False`` nothing is trained: the
+    cells not yet computed by this library are left out and named in the second list."""
     from moegs.io import read_json, write_json
 
-    records = []
+    records, missing = [], []
     for resolution in resolutions:
         for expert in experts:
             version = cell_code_version(expert, scene)
@@ -121,10 +123,13 @@ def run_study(
                         records.append(cached)
                         continue
                     why = f"recomputing (cached cell of library {cached.get('code_version', 'unknown')})"
+                if not run:
+                    missing.append(f"{expert} at {resolution:g}x, N = {n}")
+                    continue
                 print(f"[convergence] {why}: {expert} on {scene} at {resolution:g}x, N = {n}", flush=True)
                 records.append(run_cell(expert, scene, resolution, n, progress))
                 write_json(path, records[-1])
-    return records
+    return records, missing
 
 
 def markdown(records: list[dict], paper: dict[str, float]) -> str:
@@ -250,6 +255,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--section", default="convergence", help="README section (one per scene studied)")
     p.add_argument("--threads", type=int, help="torch threads (default: torch's)")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-run", action="store_true", help="train nothing: draw the cells already computed")
     args = p.parse_args(argv)
     try:
         experts = [e.strip() for e in args.experts.split(",") if e.strip()]
@@ -267,18 +273,14 @@ def main(argv: list[str] | None = None) -> int:
     threads = torch.get_num_threads()
     torch.set_num_threads(args.threads or threads)
     try:
-        records = run_study(
-            args.scene,
-            experts,
-            iterations,
-            resolutions,
-            args.workspace,
-            limits,
-            args.force,
-            not args.no_progress,
-        )
+        records, missing = run_study(
+            args.scene, experts, iterations, resolutions, args.workspace, limits, args.force,
+            not args.no_progress, run=not args.no_run,
+        )  # fmt: skip
     finally:
         torch.set_num_threads(threads)
+    if not records:
+        p.exit(2, "bench.convergence: no cell of this library computed yet (run without --no-run)\n")
     paper = paper_values(args.scene, experts)
     stem = args.scene.replace(":", "_")
     plot(records, paper, f"Convergence on {args.scene}", args.out / f"{stem}.png")
@@ -298,6 +300,8 @@ def main(argv: list[str] | None = None) -> int:
             f"{machine_line()}; {provenance(records)}; minutes are wall-clock on that machine (training, "
             "loading and evaluation); 'paper' is the MoE-GS paper's value at full resolution and schedule."
         )
+        if missing:
+            body += f" Not run yet: {'; '.join(missing)}."
         update_readme(args.readme, args.section, body)
     return 0
 

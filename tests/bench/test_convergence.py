@@ -53,6 +53,14 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
 
     monkeypatch.setattr(convergence, "run_cell", no_training)
     assert convergence.main(args) == 0  # resumes from the cache
+    # --no-run draws what is computed and names what is not
+    more = [*args[:5], "10,20,30", *args[6:], "--no-run"]
+    assert convergence.main(more) == 0
+    assert "| static | 0.0625 (50x50) | 20 |" in readme.read_text()
+    assert "Not run yet: static at 0.0625x, N = 30." in readme.read_text()
+    with pytest.raises(SystemExit) as err:
+        convergence.main([*more[:9], str(tmp_path / "empty"), *more[10:]])
+    assert err.value.code == 2
     readme.write_text(written + "<!-- results:convergence-b -->\n<!-- /results:convergence-b -->\n")
     assert convergence.main([*args, "--section", "convergence-b"]) == 0  # one README section per scene
     assert readme.read_text().count("![convergence on dnerf:mutant]") == 2
