@@ -134,7 +134,8 @@ QUICK = BenchPreset(
     router_steps=150,
     seeds=3,
     # Real scenes' seed spread is several times the stand-ins' (basketball: 0.8-3.2 dB over 3 seeds at
-    # quick), so their tables print a 3-seed mean judged against their own spread.
+    # quick), so the tables of every scene without a stability run (real scenes, the D-NeRF stand-in)
+    # print a 3-seed mean judged against their own spread.
     scene_seeds=3,
     test_views=8,
     speed_views=2,
