@@ -98,7 +98,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
     from moegs.data import load_scene
     from moegs.recipes import config_for
-    from moegs.train.entry import finished_run, train_recipe
+    from moegs.train.entry import train_recipe
+    from moegs.train.reuse import finished_run_of
 
     overrides = parse_overrides(args.set or [])
     overrides["train.seed"] = args.seed
@@ -115,8 +116,12 @@ def _cmd_train(args: argparse.Namespace) -> int:
     out = Path(
         args.out or Path("runs") / f"{args.expert}_{args.scene.replace(':', '_')}_{args.preset}_s{args.seed}"
     )
-    finished = finished_run(out)
-    if finished is not None and not args.force:
+    finished = (
+        None
+        if args.force
+        else finished_run_of(recipe, out, "--force trains it again, or choose another --out")
+    )
+    if finished is not None:
         print(
             f"{out} holds a finished run (test PSNR {finished['test']['psnr']:.2f}); left as it is "
             "(--force trains it again)"

@@ -6,7 +6,8 @@
 Each expert is built from its recipe for the scene (``moegs.recipes.config_for``: the original's
 preset for the dataset, its per-scene values, the preset's reductions) and trained with the shared
 training loop into ``<out>/<expert>/``; the loop's ``metrics.json`` there is the expert's result, so a
-finished expert is skipped on the next call and an interrupted one resumes from its checkpoint. The
+finished expert is skipped on the next call (while its ``config.json`` records the config the recipe gives
+now: ``moegs.train.reuse``) and an interrupted one resumes from its checkpoint. The
 table (PSNR / SSIM / LPIPS on the scene's test views, training seconds, final number of Gaussians) is
 written as ``<out>/table.md`` and ``<out>/table.json``.
 
@@ -21,14 +22,19 @@ import json
 import math
 import re
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from moegs.cli_types import frame_window, scene_name
+
+if TYPE_CHECKING:
+    from moegs.recipes import Recipe
 
 QUICK_FRAMES = (0, 5)
 """Frame window of the quick preset on multi-frame video datasets (CPU minutes for all experts)."""
 WINDOWED_DATASETS = ("panoptic", "n3v", "technicolor")
 """Datasets whose loader takes ``frames=(start, stop)``."""
+STALE_REMEDY = "remove that folder to train it again, or choose another --out"
+"""What to do when a folder holds a finished run of another config (``moegs.train.reuse``)."""
 COLUMNS = ("expert", "psnr", "ssim", "lpips", "train_seconds", "num_gaussians", "iterations")
 
 
@@ -52,25 +58,17 @@ def scene_kwargs(recipe, frames: tuple[int, int] | None) -> dict[str, Any]:
 
 
 def run_expert(
-    name: str,
-    scene_name: str,
-    preset: str,
-    out: Path,
-    frames: tuple[int, int] | None,
-    scenes: dict,
-    progress: bool,
+    recipe: Recipe, out: Path, frames: tuple[int, int] | None, scenes: dict, progress: bool
 ) -> dict:
-    """Train (or resume) one expert with its recipe (``moegs.recipes.config_for``); returns the loop's
-    result. ``scenes`` caches loaded scenes by their loader arguments."""
+    """Train (or resume) the expert of ``recipe`` (``moegs.recipes.config_for``) into ``out``; returns the
+    loop's result. ``scenes`` caches loaded scenes by their loader arguments."""
     from moegs.data import load_scene
-    from moegs.recipes import config_for
     from moegs.train.entry import train_recipe
 
-    recipe = config_for(name, scene_name, preset)
     kwargs = scene_kwargs(recipe, frames)
     key = json.dumps(kwargs, sort_keys=True, default=str)
     if key not in scenes:
-        scenes[key] = load_scene(scene_name, **kwargs)
+        scenes[key] = load_scene(recipe.scene, **kwargs)
     return train_recipe(recipe, scenes[key], out, progress=progress)[1]
 
 
@@ -133,7 +131,8 @@ def compare(
     """
     from moegs.experts import get_spec, list_experts
     from moegs.io import write_json
-    from moegs.train.entry import finished_run
+    from moegs.recipes import config_for
+    from moegs.train.reuse import finished_run_of
 
     names = [s.name for s in list_experts() if not s.composite] if experts == ["all"] else experts
     if not names:
@@ -145,9 +144,10 @@ def compare(
     rows, skipped, scenes = [], [], {}
     for name in names:
         run_dir = out / name
-        result = finished_run(run_dir)
+        recipe = config_for(name, scene, preset)
+        result = finished_run_of(recipe, run_dir, STALE_REMEDY)
         if result is None:
-            result = run_expert(name, scene, preset, run_dir, window, scenes, progress)
+            result = run_expert(recipe, run_dir, window, scenes, progress)
         else:
             skipped.append(name)
         rows.append(_row(name, result, run_dir))

@@ -52,11 +52,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress: bool):
     """Train (or reuse) each expert with its recipe; returns ``(experts, scene)``: the scene loaded as the
     first expert's recipe loads it (experts on RGBA datasets must agree on the background)."""
-    from moegs.compare import preset_frames, run_expert, scene_kwargs
+    from moegs.compare import STALE_REMEDY, preset_frames, run_expert, scene_kwargs
     from moegs.data import load_scene
     from moegs.recipes import config_for
     from moegs.train.checkpoint import load_expert
-    from moegs.train.entry import finished_run
+    from moegs.train.reuse import finished_run_of
 
     recipes = [config_for(n, scene_name, preset) for n in names]
     scales = {r.config.train.resolution_scale for r in recipes}
@@ -74,9 +74,9 @@ def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress
         )
     frames = preset_frames(scene_name, preset, None)
     scenes: dict = {}
-    for name in names:
-        if finished_run(out / name) is None:  # a finished expert run is reused as it is
-            run_expert(name, scene_name, preset, out / name, frames, scenes, progress)
+    for recipe in recipes:  # a finished expert run of the same config is reused as it is
+        if finished_run_of(recipe, out / recipe.expert, STALE_REMEDY) is None:
+            run_expert(recipe, out / recipe.expert, frames, scenes, progress)
     scene = load_scene(scene_name, **scene_kwargs(recipes[0], frames))
     return [load_expert(out / name, scene)[0] for name in names], scene
 

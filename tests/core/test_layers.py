@@ -52,7 +52,15 @@ LAYERS = (
         "train.stopping",
     ),  # fmt: skip
     ("experts",),
-    ("train.loop", "train.entry", "train.checkpoint", "train.evaluate", "train.segments", "recipes"),
+    (
+        "train.loop",
+        "train.entry",
+        "train.checkpoint",
+        "train.evaluate",
+        "train.segments",
+        "train.reuse",
+        "recipes",
+    ),
     ("moe", "mode"),
     ("cli", "cli_types", "compare", "route"),
 )

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -55,6 +56,31 @@ def test_finished_run_is_left_alone_unless_forced(tmp_path, capsys):
     assert train(out, "--iterations", "6", "--force") == 0
     again = metrics(out)
     assert again["test"]["psnr"] == first["test"]["psnr"] and again["train_seconds"] > 0
+
+
+def test_a_finished_run_of_another_config_is_never_reused(tmp_path, capsys):
+    """``train``, ``compare`` and ``route`` reuse a finished run only when its config is the one they would
+    train now; otherwise they stop before any work, naming the folder and the changed fields."""
+    out = tmp_path / "run"
+    assert train(out, "--iterations", "6") == 0
+    first = metrics(out)
+    capsys.readouterr()
+    assert train(out, "--iterations", "7") == 2
+    err = capsys.readouterr().err
+    assert f"{out} holds a finished run of another static config (changed: train.iterations)" in err
+    assert "--force trains it again" in err and metrics(out) == first
+    # the same folder as compare's run of static at the quick preset (other iterations and resolution)
+    shutil.copytree(out, tmp_path / "compare" / "static")
+    argv = ["--scene", SCENE, "--out", str(tmp_path / "compare"), "--quiet"]
+    for command in (
+        ["compare", "--experts", "static"],
+        ["route", "--experts", "static,mcmc", "--gate-views", "0"],
+    ):
+        assert main([*command, *argv]) == 2
+        err = capsys.readouterr().err
+        assert f"{tmp_path / 'compare' / 'static'} holds a finished run of another static config" in err
+        assert "train.iterations" in err and "remove that folder to train it again" in err
+    assert not (tmp_path / "compare" / "mcmc").exists() and not (tmp_path / "compare" / "table.json").exists()
 
 
 def _start(out: Path, iterations: int, every: int) -> subprocess.Popen:
