@@ -34,31 +34,34 @@ def _one_line(text: str) -> str:
 
 
 # -- 1. command-line arguments: argparse rejects them before any work (exit 2) --------------------------
+TRAIN = ["train", "--expert", "static", "--scene", SCENE]
+ROUTE = ["route", "--experts", "static,mcmc", "--scene", SCENE]
+COMPARE = ["compare", "--scene", SCENE]
 # fmt: off
 ARGUMENTS = [
     (["train", "--expert", "static", "--scene", "foo"], "argument --scene: scene name must be '<dataset>:<scene>', got 'foo'"),
     (["train", "--expert", "static", "--scene", "nosuch:x"], "argument --scene: unknown dataset 'nosuch' in 'nosuch:x'"),
     (["train", "--expert", "static", "--scene", "dnerf:"], "argument --scene: scene name 'dnerf:' has no scene after ':'"),
-    (["train", "--expert", "static", "--scene", SCENE, "--seed", "-1"], "argument --seed: expected an integer seed in [0, 2**63), got '-1'"),
-    (["train", "--expert", "static", "--scene", SCENE, "--seed", "1e20"], "argument --seed: expected an integer seed in [0, 2**63), got '1e20'"),
-    (["train", "--expert", "static", "--scene", SCENE, "--seed", str(2**64)], f"argument --seed: expected an integer seed in [0, 2**63), got '{2**64}'"),
-    (["train", "--expert", "static", "--scene", SCENE, "--iterations", "0"], "argument --iterations: expected a positive integer, got '0'"),
-    (["train", "--expert", "static", "--scene", SCENE, "--iterations", "-5"], "argument --iterations: expected a positive integer, got '-5'"),
-    (["train", "--expert", "static", "--scene", SCENE, "--iterations", "ten"], "argument --iterations: expected a positive integer, got 'ten'"),
-    (["train", "--expert", "static", "--scene", SCENE, "--resolution-scale", "0"], "argument --resolution-scale: expected a scale in (0, 1], got '0'"),
-    (["train", "--expert", "static", "--scene", SCENE, "--resolution-scale", "1.5"], "argument --resolution-scale: expected a scale in (0, 1], got '1.5'"),
-    (["train", "--expert", "static", "--scene", SCENE, "--resolution-scale", "nan"], "argument --resolution-scale: expected a scale in (0, 1], got 'nan'"),
-    (["train", "--expert", "static", "--scene", SCENE, "--checkpoint-every", "0"], "argument --checkpoint-every: expected a positive integer, got '0'"),
-    (["train", "--expert", "static", "--scene", SCENE, "--preset", "big"], "argument --preset: invalid choice: 'big'"),
+    ([*TRAIN, "--seed", "-1"], "argument --seed: expected an integer seed in [0, 2**63), got '-1'"),
+    ([*TRAIN, "--seed", "1e20"], "argument --seed: expected an integer seed in [0, 2**63), got '1e20'"),
+    ([*TRAIN, "--seed", str(2**64)], f"argument --seed: expected an integer seed in [0, 2**63), got '{2**64}'"),
+    ([*TRAIN, "--iterations", "0"], "argument --iterations: expected a positive integer, got '0'"),
+    ([*TRAIN, "--iterations", "-5"], "argument --iterations: expected a positive integer, got '-5'"),
+    ([*TRAIN, "--iterations", "ten"], "argument --iterations: expected a positive integer, got 'ten'"),
+    ([*TRAIN, "--resolution-scale", "0"], "argument --resolution-scale: expected a scale in (0, 1], got '0'"),
+    ([*TRAIN, "--resolution-scale", "1.5"], "argument --resolution-scale: expected a scale in (0, 1], got '1.5'"),
+    ([*TRAIN, "--resolution-scale", "nan"], "argument --resolution-scale: expected a scale in (0, 1], got 'nan'"),
+    ([*TRAIN, "--checkpoint-every", "0"], "argument --checkpoint-every: expected a positive integer, got '0'"),
+    ([*TRAIN, "--preset", "big"], "argument --preset: invalid choice: 'big'"),
     (["train", "--scene", SCENE], "the following arguments are required: --expert"),
-    (["route", "--experts", "static,mcmc", "--scene", SCENE, "--router", "nosuch"], "argument --router: invalid choice: 'nosuch'"),
-    (["route", "--experts", "static,mcmc", "--scene", SCENE, "--iterations", "0"], "argument --iterations: expected a positive integer, got '0'"),
-    (["route", "--experts", "static,mcmc", "--scene", SCENE, "--gate-views", "-1"], "argument --gate-views: expected an integer >= 0, got '-1'"),
-    (["route", "--experts", "static,mcmc", "--scene", SCENE, "--convention", "x"], "argument --convention: invalid choice: 'x'"),
-    (["route", "--experts", "static,mcmc", "--scene", SCENE, "--preset", "x"], "argument --preset: invalid choice: 'x'"),
-    (["route", "--experts", "static,mcmc", "--scene", SCENE, "--seed", "-3"], "argument --seed: expected an integer seed in [0, 2**63), got '-3'"),
+    ([*ROUTE, "--router", "nosuch"], "argument --router: invalid choice: 'nosuch'"),
+    ([*ROUTE, "--iterations", "0"], "argument --iterations: expected a positive integer, got '0'"),
+    ([*ROUTE, "--gate-views", "-1"], "argument --gate-views: expected an integer >= 0, got '-1'"),
+    ([*ROUTE, "--convention", "x"], "argument --convention: invalid choice: 'x'"),
+    ([*ROUTE, "--preset", "x"], "argument --preset: invalid choice: 'x'"),
+    ([*ROUTE, "--seed", "-3"], "argument --seed: expected an integer seed in [0, 2**63), got '-3'"),
     (["route", "--experts", "static,mcmc", "--scene", "mutant"], "argument --scene: scene name must be '<dataset>:<scene>', got 'mutant'"),
-    (["route", "--experts", "static,mcmc", "--scene", SCENE, "--checkpoint-every", "0"], "argument --checkpoint-every: expected a positive integer, got '0'"),
+    ([*ROUTE, "--checkpoint-every", "0"], "argument --checkpoint-every: expected a positive integer, got '0'"),
     (["render", "run", "--fps", "0"], "argument --fps: expected a positive integer, got '0'"),
     (["render", "run", "--fps", "-2"], "argument --fps: expected a positive integer, got '-2'"),
     (["render", "run", "--fps", "x"], "argument --fps: expected a positive integer, got 'x'"),
@@ -66,10 +69,10 @@ ARGUMENTS = [
     (["export", "run", "--time", "nan"], "argument --time: expected a time in [0, 1], got 'nan'"),
     (["export", "run", "--time", "-0.1"], "argument --time: expected a time in [0, 1], got '-0.1'"),
     (["export", "run", "--time", "abc"], "argument --time: expected a time in [0, 1], got 'abc'"),
-    (["compare", "--scene", SCENE, "--frames", "3"], "argument --frames: expected START:STOP with 0 <= START < STOP, got '3'"),
-    (["compare", "--scene", SCENE, "--frames", "5:2"], "argument --frames: expected START:STOP with 0 <= START < STOP, got '5:2'"),
-    (["compare", "--scene", SCENE, "--frames", "a:b"], "argument --frames: expected START:STOP with 0 <= START < STOP, got 'a:b'"),
-    (["compare", "--scene", SCENE, "--preset", "x"], "argument --preset: invalid choice: 'x'"),
+    ([*COMPARE, "--frames", "3"], "argument --frames: expected START:STOP with 0 <= START < STOP, got '3'"),
+    ([*COMPARE, "--frames", "5:2"], "argument --frames: expected START:STOP with 0 <= START < STOP, got '5:2'"),
+    ([*COMPARE, "--frames", "a:b"], "argument --frames: expected START:STOP with 0 <= START < STOP, got 'a:b'"),
+    ([*COMPARE, "--preset", "x"], "argument --preset: invalid choice: 'x'"),
     (["eval", "run", "--profile", "x"], "argument --profile: invalid choice: 'x'"),
     (["recipe", "--expert", "static", "--scene", SCENE, "--preset", "x"], "argument --preset: invalid choice: 'x'"),
     (["recipe", "--expert", "static", "--scene", "x"], "argument --scene: scene name must be '<dataset>:<scene>', got 'x'"),
@@ -91,7 +94,7 @@ def test_bad_arguments_are_rejected_before_any_work(argv, message, capsys):
 def finished_run(tmp_path_factory) -> Path:
     """A finished two-step static run on the small D-NeRF-like stand-in."""
     out = tmp_path_factory.mktemp("run") / "static"
-    argv = ["train", "--expert", "static", "--scene", SCENE, "--resolution-scale", "0.4", "--quiet"]
+    argv = [*TRAIN, "--resolution-scale", "0.4", "--quiet"]
     assert main([*argv, "--iterations", "2", "--out", str(out)]) == 0
     return out
 
@@ -160,8 +163,8 @@ def test_broken_runs_fail_with_one_line_naming_the_file(case, finished_run, tmp_
 
 COMMANDS = [
     (["train", "--expert", "nosuch", "--scene", SCENE], f"moegs train: unknown expert 'nosuch'; registered experts: {EXPERTS}"),
-    (["train", "--expert", "static", "--scene", SCENE, "--set", "oops"], "moegs train: --set expects FIELD=VALUE (e.g. train.iterations=100), got 'oops'"),
-    (["train", "--expert", "static", "--scene", SCENE, "--set", "nosuch=1"], "moegs train: StaticConfig has no field 'nosuch' (in 'nosuch')"),
+    ([*TRAIN, "--set", "oops"], "moegs train: --set expects FIELD=VALUE (e.g. train.iterations=100), got 'oops'"),
+    ([*TRAIN, "--set", "nosuch=1"], "moegs train: StaticConfig has no field 'nosuch' (in 'nosuch')"),
     (["route", "--experts", "static", "--scene", SCENE], "moegs route: --experts needs at least two different experts to route between, got ['static']"),
     (["route", "--experts", "static,static", "--scene", SCENE], "moegs route: --experts needs at least two different experts to route between, got ['static', 'static']"),
     (["route", "--experts", "static,nosuch", "--scene", SCENE], f"moegs route: unknown expert 'nosuch'; registered experts: {EXPERTS}"),
