@@ -6,8 +6,9 @@
 Each expert is built from its recipe for the scene (``moegs.recipes.config_for``: the original's
 preset for the dataset, its per-scene values, the preset's reductions) and trained with the shared
 training loop into ``<out>/<expert>/``; the loop's ``metrics.json`` there is the expert's result, so a
-finished expert is skipped on the next call (while its ``config.json`` records the config the recipe gives
-now: ``moegs.train.reuse``) and an interrupted one resumes from its checkpoint. The
+finished expert is skipped on the next call (a run of another config than the recipe's is reused too, but
+marked in the table with the fields that differ: ``moegs.train.reuse``) and an interrupted one resumes
+from its checkpoint. The
 table (PSNR / SSIM / LPIPS on the scene's test views, training seconds, final number of Gaussians) is
 written as ``<out>/table.md`` and ``<out>/table.json``.
 
@@ -33,8 +34,6 @@ QUICK_FRAMES = (0, 5)
 """Frame window of the quick preset on multi-frame video datasets (CPU minutes for all experts)."""
 WINDOWED_DATASETS = ("panoptic", "n3v", "technicolor")
 """Datasets whose loader takes ``frames=(start, stop)``."""
-STALE_REMEDY = "remove that folder to train it again, or choose another --out"
-"""What to do when a folder holds a finished run of another config (``moegs.train.reuse``)."""
 COLUMNS = ("expert", "psnr", "ssim", "lpips", "train_seconds", "num_gaussians", "iterations")
 
 
@@ -96,7 +95,9 @@ def _row(name: str, result: dict, run_dir: Path) -> dict:
 
 
 def markdown(rows: list[dict], title: str) -> str:
-    """The table as GitHub markdown (LPIPS "n/a" when its weights are unavailable)."""
+    """The table as GitHub markdown (LPIPS "n/a" when its weights are unavailable; ``*`` marks a reused
+    run of another config than the preset's, with its changed fields below the table)."""
+    from moegs.train.reuse import describe_changes
 
     def fmt(key: str, value: Any) -> str:
         if value is None:
@@ -109,8 +110,18 @@ def markdown(rows: list[dict], title: str) -> str:
             return f"{value:.1f}"
         return str(value)
 
+    def cells(row: dict) -> list[str]:
+        marked = {**row, "expert": row["expert"] + ("*" if row.get("config_changes") else "")}
+        return [fmt(k, marked[k]) for k in COLUMNS]
+
     lines = [f"# {title}", "", "| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
-    lines += ["| " + " | ".join(fmt(k, r[k]) for k in COLUMNS) + " |" for r in rows]
+    lines += ["| " + " | ".join(cells(r)) + " |" for r in rows]
+    lines += [
+        f"\n{r['expert']}*: a finished run of another config than the preset's, reused (changed: "
+        f"{describe_changes(r['config_changes'])})"
+        for r in rows
+        if r.get("config_changes")
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -126,13 +137,15 @@ def compare(
 
     Returns:
         ``{"scene", "preset", "frames", "rows": [{"expert", "psnr", "ssim", "lpips", "train_seconds",
-        "num_gaussians", "iterations", "stand_in", "run"}], "skipped": [experts whose result existed],
-        "table": path of table.md}``.
+        "num_gaussians", "iterations", "stand_in", "run", "config_changes"}], "skipped": [experts whose
+        result existed], "table": path of table.md}``; ``config_changes``: the fields in which a reused
+        run's config differs from the preset's (``moegs.train.reuse``), empty for a run of the preset.
     """
     from moegs.experts import get_spec, list_experts
     from moegs.io import write_json
     from moegs.recipes import config_for
-    from moegs.train.reuse import finished_run_of
+    from moegs.train.entry import finished_run
+    from moegs.train.reuse import config_changes_of
 
     names = [s.name for s in list_experts() if not s.composite] if experts == ["all"] else experts
     if not names:
@@ -145,12 +158,13 @@ def compare(
     for name in names:
         run_dir = out / name
         recipe = config_for(name, scene, preset)
-        result = finished_run_of(recipe, run_dir, STALE_REMEDY)
+        result, changed = finished_run(run_dir), []
         if result is None:
             result = run_expert(recipe, run_dir, window, scenes, progress)
         else:
             skipped.append(name)
-        rows.append(_row(name, result, run_dir))
+            changed = config_changes_of(recipe, run_dir)
+        rows.append({**_row(name, result, run_dir), "config_changes": changed})
     table = {
         "scene": scene,
         "preset": preset,
@@ -183,11 +197,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     experts = [e.strip() for e in args.experts.split(",") if e.strip()]
     table = compare(experts, args.scene, args.preset, args.out, args.frames, progress=not args.quiet)
+    from moegs.train.reuse import describe_changes
+
     for row in table["rows"]:
         lpips = "n/a" if row["lpips"] is None or math.isnan(row["lpips"]) else f"{row['lpips']:.4f}"
         print(
             f"{row['expert']:<10} PSNR {row['psnr']:6.2f}  SSIM {row['ssim']:.4f}  LPIPS {lpips}  "
             f"{row['train_seconds']:7.1f} s  {row['num_gaussians']:>7} Gaussians"
         )
+        if row["config_changes"]:
+            print(
+                f"{'':<10} (reused {row['run']}: another config than the preset's, changed: "
+                f"{describe_changes(row['config_changes'])})"
+            )
     print(f"table -> {table['table']} (and table.json beside it)")
     return 0

@@ -14,6 +14,7 @@ Layout of ``--out`` (default ``runs/route_<scene>_<preset>_s<seed>``)::
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -52,11 +53,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress: bool):
     """Train (or reuse) each expert with its recipe; returns ``(experts, scene)``: the scene loaded as the
     first expert's recipe loads it (experts on RGBA datasets must agree on the background)."""
-    from moegs.compare import STALE_REMEDY, preset_frames, run_expert, scene_kwargs
+    from moegs.compare import preset_frames, run_expert, scene_kwargs
     from moegs.data import load_scene
     from moegs.recipes import config_for
     from moegs.train.checkpoint import load_expert
-    from moegs.train.reuse import finished_run_of
+    from moegs.train.entry import finished_run
+    from moegs.train.reuse import config_changes_of, describe_changes
 
     recipes = [config_for(n, scene_name, preset) for n in names]
     scales = {r.config.train.resolution_scale for r in recipes}
@@ -74,9 +76,16 @@ def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress
         )
     frames = preset_frames(scene_name, preset, None)
     scenes: dict = {}
-    for recipe in recipes:  # a finished expert run of the same config is reused as it is
-        if finished_run_of(recipe, out / recipe.expert, STALE_REMEDY) is None:
-            run_expert(recipe, out / recipe.expert, frames, scenes, progress)
+    for recipe in recipes:  # a finished expert run is reused as it is, one of another config with a notice
+        run_dir = out / recipe.expert
+        if finished_run(run_dir) is None:
+            run_expert(recipe, run_dir, frames, scenes, progress)
+        elif changed := config_changes_of(recipe, run_dir):
+            print(
+                f"moegs route: reusing {run_dir}, a finished run of another config than the {preset} "
+                f"preset's (changed: {describe_changes(changed)})",
+                file=sys.stderr,
+            )
     scene = load_scene(scene_name, **scene_kwargs(recipes[0], frames))
     return [load_expert(out / name, scene)[0] for name in names], scene
 

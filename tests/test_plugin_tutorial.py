@@ -73,8 +73,11 @@ def test_plugin_trains_and_routes(plugin, tmp_path, capsys):
         assert main([*argv, "--out", str(tmp_path / name)]) == 0
     argv = ["route", "--experts", "linear,static", "--scene", SCENE, "--out", str(tmp_path)]
     assert main([*argv, "--iterations", "20", "--gate-views", "1", "--quiet"]) == 0
-    out = capsys.readouterr().out
-    assert "expert linear" in out and (tmp_path / "router_vapr" / "gates" / "gate_0_linear_000.png").is_file()
+    captured = capsys.readouterr()
+    assert "expert linear" in captured.out
+    assert (tmp_path / "router_vapr" / "gates" / "gate_0_linear_000.png").is_file()
+    for name in ("linear", "static"):  # trained with --iterations 40, not the quick preset's: said so
+        assert f"reusing {tmp_path / name}, a finished run of another config" in captured.err
 
 
 @pytest.mark.slow

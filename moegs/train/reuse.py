@@ -1,9 +1,12 @@
-"""Reusing a finished run: only when its folder's ``config.json`` records the config the recipe gives now.
+"""Reusing a finished run, and saying when its config is not the one the recipe gives now.
 
-``moegs train``, ``moegs compare`` and ``moegs route`` leave a finished expert run alone. Without this check a
-changed recipe (another ``--iterations`` or ``--set``, a new per-scene value, a library default that moved)
-would silently reuse the old run's result. An interrupted run is not affected: resuming its checkpoint
-already refuses another config (``moegs.train.loop``).
+``moegs train``, ``moegs compare`` and ``moegs route`` leave a finished expert run alone. Its folder's
+``config.json`` records the config it was trained with; a recipe that changed since (another ``--iterations``
+or ``--set``, a new per-scene value, a library default that moved) must not pass silently. ``moegs train``
+refuses such a folder (``finished_run_of``); ``compare`` and ``route`` reuse it, as a user may have trained
+an expert on purpose with other settings, but name the changed fields (``config_changes_of``). An
+interrupted run is not affected: resuming its checkpoint already refuses another config
+(``moegs.train.loop``).
 """
 
 from __future__ import annotations
@@ -22,23 +25,34 @@ class StaleRunError(ValueError):
     """A folder holds a finished run of another config."""
 
 
+def config_changes_of(recipe: Recipe, out_dir: str | Path) -> list[str]:
+    """Dotted fields of the expert config that ``out_dir/config.json`` records with another value than
+    ``recipe``'s (``RUN_ONLY_FIELDS`` aside); empty when they agree."""
+    recorded = read_json(Path(out_dir) / "config.json", "run config")
+    return config_changes(recorded.get("config", {}), to_dict(recipe.config), RUN_ONLY_FIELDS)
+
+
+def describe_changes(changed: list[str], shown: int = 6) -> str:
+    """``"a, b, c and 2 more"``: the first ``shown`` changed fields."""
+    more = f" and {len(changed) - shown} more" if len(changed) > shown else ""
+    return ", ".join(changed[:shown]) + more
+
+
 def finished_run_of(recipe: Recipe, out_dir: str | Path, remedy: str) -> dict[str, Any] | None:
     """The result of the finished run in ``out_dir`` (see ``finished_run``) when it was trained with
     ``recipe``'s config, None when no run there is finished.
 
     Raises:
-        StaleRunError: the finished run's config differs (fields in ``RUN_ONLY_FIELDS`` aside); the message
-            names the folder, the first fields that differ and ``remedy`` (what the user can do).
+        StaleRunError: the finished run's config differs; the message names the folder, the changed fields
+            and ``remedy`` (what the user can do).
     """
     result = finished_run(out_dir)
     if result is None:
         return None
-    recorded = read_json(Path(out_dir) / "config.json", "run config")
-    changed = config_changes(recorded.get("config", {}), to_dict(recipe.config), RUN_ONLY_FIELDS)
+    changed = config_changes_of(recipe, out_dir)
     if changed:
-        more = f" and {len(changed) - 6} more" if len(changed) > 6 else ""
         raise StaleRunError(
             f"{out_dir} holds a finished run of another {recipe.expert} config (changed: "
-            f"{', '.join(changed[:6])}{more}), so it is not reused; {remedy}"
+            f"{describe_changes(changed)}), so it is not reused; {remedy}"
         )
     return result

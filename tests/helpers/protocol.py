@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import torch
@@ -59,11 +60,13 @@ def check_inputs_key(expert, scene) -> None:
     expert.eval()
     seen: dict = {}
     features = None
-    with torch.no_grad():
-        for view in [*scene.train, *scene.test]:
-            key = expert.splat_inputs_key(view.camera)
+    compared = 0
+    views = [*scene.train, *scene.test]
+    with torch.no_grad():  # every view twice: the second time through a copy of its camera
+        for view, camera in [*((v, v.camera) for v in views), *((v, copy.copy(v.camera)) for v in views)]:
+            key = expert.splat_inputs_key(camera)
             hash(key)
-            inputs = expert.splat_inputs(view.camera, scene.background)
+            inputs = expert.splat_inputs(camera, scene.background)
             if features is None:
                 channels = inputs.frame.colors if inputs.frame.colors is not None else inputs.frame.sh[:, 0]
                 features = torch.rand(view.camera.height, view.camera.width, channels.shape[-1])
@@ -72,12 +75,19 @@ def check_inputs_key(expert, scene) -> None:
                 seen[key] = (inputs, decoded)
                 continue
             first, first_decoded = seen[key]
-            for field in ("means", "quats", "scales", "opacities", "colors", "sh"):
-                a, b = getattr(first.frame, field), getattr(inputs.frame, field)
-                assert (a is None and b is None) or torch.equal(a, b), (
-                    f"{view.key}: {field} differs, same key"
-                )
+            assert_same_frame(first.frame, inputs.frame, f"{view.key}, same key")
             assert first.antialiased == inputs.antialiased and torch.equal(first_decoded, decoded), view.key
+            compared += 1
+    assert compared >= len(views), f"only {compared} views shared a key with an earlier one"
+
+
+def assert_same_frame(a, b, where: str) -> None:
+    """Two ``GaussianFrame``s hold equal tensors in every field (or both lack it)."""
+    for field in ("means", "quats", "scales", "opacities", "colors", "sh"):
+        x, y = getattr(a, field), getattr(b, field)
+        assert (x is None and y is None) or (x is not None and y is not None and torch.equal(x, y)), (
+            f"{where}: {field} differs"
+        )
 
 
 def check_checkpoint(expert, scene, folder: Path) -> None:
@@ -89,8 +99,7 @@ def check_checkpoint(expert, scene, folder: Path) -> None:
     expert.eval()
     with torch.no_grad():
         for t in TIMES:
-            a, b = expert.frame(t), back.frame(t)
-            assert torch.equal(a.means, b.means) and torch.equal(a.opacities, b.opacities), t
+            assert_same_frame(expert.frame(t), back.frame(t), f"t={t}")
 
 
 def check_protocol(name: str, folder: Path) -> None:
