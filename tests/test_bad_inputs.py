@@ -54,6 +54,7 @@ ARGUMENTS = [
     ([*TRAIN, "--checkpoint-every", "0"], "argument --checkpoint-every: expected a positive integer, got '0'"),
     ([*TRAIN, "--preset", "big"], "argument --preset: invalid choice: 'big'"),
     (["train", "--scene", SCENE], "the following arguments are required: --expert"),
+    (["route", "--scene", SCENE], "the following arguments are required: --experts"),
     ([*ROUTE, "--router", "nosuch"], "argument --router: invalid choice: 'nosuch'"),
     ([*ROUTE, "--iterations", "0"], "argument --iterations: expected a positive integer, got '0'"),
     ([*ROUTE, "--gate-views", "-1"], "argument --gate-views: expected an integer >= 0, got '-1'"),

@@ -94,9 +94,12 @@ def test_capacity_and_longest_chain_first():
     _run(tasks, graph, ex)
     assert ex.started == ["expert", "router", "cell", "moe_cell"]  # ties: plan order
     assert ex.peak == 1
-    wide = FakeExecutor(3)
-    _run([_task(str(i), "eval") for i in range(7)], {str(i): [] for i in range(7)}, wide)
-    assert wide.peak <= 3 and len(wide.started) == 7
+    # three slots: the first three tasks can only finish together (a barrier), so they must run at once
+    barrier = threading.Barrier(3)
+    together = {str(i): lambda: barrier.wait(timeout=30) >= 0 for i in range(3)}
+    wide = FakeExecutor(3, together)
+    outcomes, _ = _run([_task(str(i), "eval") for i in range(7)], {str(i): [] for i in range(7)}, wide)
+    assert wide.peak == 3 and len(wide.started) == 7 and all(o.ok for o in outcomes)
 
 
 def test_heights():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 
 import pytest
 
@@ -115,7 +116,17 @@ def test_store_builds_once_under_concurrency(tmp_path):
     ws = Workspace(tmp_path)
     task = _task(action="build")
     build, calls = _builder({"train_seconds": 1.0})
-    threads = [threading.Thread(target=ws.ensure, args=(task, build)) for _ in range(4)]
+    arrived = threading.Barrier(4)
+
+    def slow_build(out):  # long enough that every other thread asks while it runs
+        time.sleep(0.3)
+        return build(out)
+
+    def ensure() -> None:  # the four threads call ensure at the same moment
+        arrived.wait(timeout=30)
+        ws.ensure(task, slow_build)
+
+    threads = [threading.Thread(target=ensure) for _ in range(4)]
     for t in threads:
         t.start()
     for t in threads:

@@ -72,11 +72,16 @@ def test_quantize_u8(frame, gen):
     assert (quantize_u8(edge) * 255).tolist() == [1.0, 0.0]
 
 
-def test_batch_gives_lists(frame, degraded):
+def test_a_batch_gives_each_image_its_own_values(frame, degraded):
     preds = torch.stack(list(degraded.values()))
     out = evaluate_images(preds, frame.expand_as(preds), "clean")
-    assert isinstance(out["psnr"], list) and len(out["ssim"]) == 3
-    assert out["lpips"] is None or len(out["lpips"]) == 3
+    singles = [evaluate_images(p, frame, "clean") for p in preds]
+    for key in ("psnr", "ssim", "lpips"):
+        if out[key] is None:  # LPIPS without its weights: None for the batch and for each image
+            assert all(s[key] is None for s in singles)
+            continue
+        assert isinstance(out[key], list) and len(out[key]) == len(preds)
+        assert out[key] == pytest.approx([s[key] for s in singles], abs=1e-5), key
 
 
 def test_mask_and_unavailable_lpips(frame, degraded, monkeypatch, tmp_path):
@@ -85,7 +90,8 @@ def test_mask_and_unavailable_lpips(frame, degraded, monkeypatch, tmp_path):
     out = evaluate_images(degraded["blur"], frame, "moegs", mask=mask)
     assert out["masked"] and (out["lpips"] is not None or out["lpips_unavailable"])
     assert out["psnr"] == pytest.approx(psnr(degraded["blur"], frame, mask).item(), abs=1e-6)
+    with_weights = evaluate_images(degraded["blur"], frame, "clean")
     monkeypatch.setenv("MOEGS_DATA", str(tmp_path))
     out = evaluate_images(degraded["blur"], frame, "clean")
     assert out["lpips"] is None and str(tmp_path) in out["lpips_unavailable"]
-    assert out["psnr"] is not None and out["ssim"] is not None
+    assert out["psnr"] == with_weights["psnr"] and out["ssim"] == with_weights["ssim"]  # LPIPS alone is gone
