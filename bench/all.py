@@ -183,7 +183,7 @@ def write_outputs(
         "presets": comparisons,
         "compute": compute_rows(plan, workspace),
     }
-    paths = write_report(reports, plan.preset, reports_dir, run, signals)
+    paths = write_report(reports, plan.preset, reports_dir, run, signals, plan.identity())
     return {"reports": reports, "paths": paths, "tables": written}
 
 

@@ -10,9 +10,11 @@ evaluations as one graph.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from bench.cells import NOT_COMPUTED, kind_module, missing_pieces
 from bench.datasets import get_dataset
+from bench.keys import digest
 from bench.presets import BenchPreset
 from bench.registry import get_spec, list_specs
 from bench.scenes import SceneRef, load_kwargs, resolve_scenes
@@ -96,6 +98,20 @@ class Plan:
         for key, d in depth.items():
             levels[d].append(tasks[key])
         return levels
+
+    def identity(self) -> dict[str, Any]:
+        """What the plan's cells are, checkable without running anything: ``{"specs", "scenes", "tasks",
+        "keys_digest"}``, the digest over every build and evaluation key. Each key holds the version of
+        the library code its task runs (``bench.codedeps``), so outputs written from this plan are
+        current exactly while a new plan of the same specs has the same digest
+        (``tests/bench/test_committed_outputs.py``)."""
+        keys = {t.key for level in self.build_levels() for t in level} | {t.key for t in self.eval_tasks()}
+        return {
+            "specs": [sp.spec.id for sp in self.specs],
+            "scenes": sorted({ref.name for sp in self.specs for ref in sp.scenes}),
+            "tasks": len(keys),
+            "keys_digest": digest(sorted(keys)),
+        }
 
     def closure(self, task: Task) -> list[Task]:
         """Every build task an evaluation depends on (transitively)."""

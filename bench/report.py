@@ -144,7 +144,7 @@ def spec_report(
 
 
 # ------------------------------------------------------------------------------------ rendering
-def _header(preset: BenchPreset, run: dict[str, Any] | None) -> dict[str, Any]:
+def _header(preset: BenchPreset, run: dict[str, Any] | None, cells: dict[str, Any] | None) -> dict[str, Any]:
     return {
         "created": time.strftime("%Y-%m-%d %H:%M:%S %z"),
         "preset": preset.name,
@@ -153,6 +153,7 @@ def _header(preset: BenchPreset, run: dict[str, Any] | None) -> dict[str, Any]:
         "machine": f"{platform.node()} ({platform.machine()}, {platform.system()})",
         "moegs_code_version": code_version(),
         "git": git_commit(),
+        "cells": cells or {},
         "run": run or {},
     }
 
@@ -385,6 +386,16 @@ def render_markdown(
         + (" - **reduced scale: numbers are not the paper's protocol**" if h["reduced_scale"] else ""),
         f"- library code version: `{h['moegs_code_version']}`, git: `{h['git'].get('commit')}`"
         + (" (moegs has uncommitted changes)" if h["git"].get("dirty") else ""),
+        *(
+            [
+                f"- cells: {c['tasks']} builds and evaluations of {len(c['specs'])} specs, keys digest "
+                f"`{c['keys_digest']}` (each key holds the version of the code its cell runs: these outputs "
+                "are those of the current code while a new plan gives the same digest, "
+                "`tests/bench/test_committed_outputs.py`)"
+            ]
+            if (c := h.get("cells"))
+            else []
+        ),
         "- Numbers come only from local result JSONs (ours) and `tables/paper` (the paper). "
         "Δ = ours - paper, shown only where ours ran on the paper's real scene(s); "
         "outputs from synthetic stand-in scenes say so.",
@@ -552,12 +563,13 @@ def write_report(
     out_dir: Path,
     run: dict[str, Any] | None = None,
     signals: dict[str, Any] | None = None,
+    cells: dict[str, Any] | None = None,
 ) -> dict[str, Path]:
     """Write REPORT.md, REPORT.html and summary.json into ``out_dir``; ``signals`` (``bench.signals``:
     ``noise``, ``experts``, ``routing``, ``compute``) go into the report and into summary.json as top-level
-    keys."""
+    keys; ``cells``: the plan's ``identity()``, in the header."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    header = _header(preset, run)
+    header = _header(preset, run, cells)
     signals = signals or {}
     paths = {"md": out_dir / "REPORT.md", "html": out_dir / "REPORT.html", "json": out_dir / "summary.json"}
     paths["md"].write_text(render_markdown(reports, header, out_dir, signals), encoding="utf-8")

@@ -187,6 +187,11 @@ def test_plots_and_report(run):
     parts = [r["minutes"] for r in compute["builds"] + compute["evaluations"]]
     assert all(m > 0 for m in parts) and compute["minutes"] == pytest.approx(sum(parts))
     assert "## What the cells cost" in md
+    # the plan's identity: what tests/bench/test_committed_outputs.py checks the committed outputs with
+    cells = summary["header"]["cells"]
+    assert cells == run["plan"].identity() == make_plan([spec], PRESET).identity()
+    assert cells["specs"] == [spec.id] and cells["scenes"] == ["dnerf:mutant"]
+    assert f"keys digest `{cells['keys_digest']}`" in md
 
 
 def test_warm_rerun_reuses_everything(run):
