@@ -138,10 +138,18 @@ def output_dirs(out: Path, preset, selected: list[str], complete: list[str]) -> 
 
 
 def write_outputs(
-    plan, workspace, selected: list[str], tables_dir: Path, reports_dir: Path, run: dict | None = None
+    plan,
+    workspace,
+    selected: list[str],
+    tables_dir: Path,
+    reports_dir: Path,
+    run: dict | None = None,
+    quick_summary: Path | None = None,
 ) -> dict:
     """Tables and plots for ``selected``, the report for every spec of ``plan``; a ``real_only`` preset
-    also writes its paper | standard | quick tables (``bench.sidebyside``)."""
+    also writes its paper | standard | quick tables (``bench.sidebyside``). ``quick_summary``: the quick
+    outputs' ``summary.json``, whose seed spreads a run at another preset borrows for the scenes whose
+    quick cells are not in ``workspace`` (``bench.signals.run_noise``)."""
     from bench.latex import write_index, write_table
     from bench.plots import plot_spec
     from bench.report import spec_report, write_report
@@ -152,7 +160,7 @@ def write_outputs(
 
     reports, written, comparisons = [], [], []
     header = f"preset {plan.preset.name}, generated {time.strftime('%Y-%m-%d %H:%M')}"
-    noise = run_noise(plan, workspace)
+    noise = run_noise(plan, workspace, quick_summary)
     for sp in plan.specs:
         values = SpecValues(sp, workspace, noise_for(noise, [s.name for s in sp.scenes]))
         latex, figures = None, []
@@ -264,7 +272,10 @@ def main(argv: list[str] | None = None) -> int:
                 for o in summary.failures
             ],
         }
-    outputs = write_outputs(run_plan if subset else plan, workspace, selected, tables_dir, reports_dir, run)
+    quick_summary = output_dirs(args.out, get_preset("quick"), complete, complete)[1] / "summary.json"
+    outputs = write_outputs(
+        run_plan if subset else plan, workspace, selected, tables_dir, reports_dir, run, quick_summary
+    )
     elapsed = time.perf_counter() - start
     _print_summary(outputs["reports"], selected, outputs["paths"], elapsed)
     if run and run["failures"]:

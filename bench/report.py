@@ -258,7 +258,8 @@ def noise_markdown(noise: dict[str, Any]) -> list[str]:
         rows = ", ".join(f"{row} {_num(v.get('PSNR'))}" for row, v in entry["rows"].items())
         metrics, label = entry["metrics"], name + ("" if entry["real"] else " (stand-in)")
         borrowed = entry.get("preset") not in (None, noise.get("preset"))
-        source = ", ".join(entry["source"]) + (f" ({entry['preset']} run)" if borrowed else "")
+        run = f"{entry['preset']} run" + (f", {entry['committed']}" if entry.get("committed") else "")
+        source = ", ".join(entry["source"]) + (f" ({run})" if borrowed else "")
         lines.append(
             f"| {label} | {entry['seeds']} | {source} | {rows} "
             f"| {_num(metrics.get('PSNR'))} | {_num(metrics.get('PSNR dynamic'))} |"

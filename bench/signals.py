@@ -16,6 +16,8 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
 from typing import Any
 
 from bench.cells._eval import REGIME_PREFIX
@@ -180,20 +182,37 @@ NOISE_PROXY = "quick"
 """The preset whose repeated seeds stand in for another preset's noise on a scene it trains once."""
 
 
-def run_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
+def run_noise(plan: Plan, workspace: Workspace, committed: Path | None = None) -> dict[str, Any]:
     """``seed_noise`` of ``plan``, plus, for each of its scenes with no spread of its own, the spread the
-    ``NOISE_PROXY`` preset measured on that scene with the same specs in the same workspace (its entry
-    keeps ``"preset"``: the report says it was borrowed). A longer run's noise is not measured by a
-    shorter one's, but a claim decided by less than the quick run's spread is not decided."""
+    ``NOISE_PROXY`` preset measured on that scene with the same specs in the same workspace, or else the
+    one recorded in ``committed`` (that preset's ``summary.json``, e.g. the committed quick outputs, for a
+    run on a machine without the quick cells). A borrowed entry keeps ``"preset"`` (and, from a summary,
+    ``"committed"``: which file and commit), so the report says so. A longer run's noise is not measured
+    by a shorter one's, but a claim decided by less than the quick run's spread is not decided."""
     noise = seed_noise(plan, workspace)
     if plan.preset.name == NOISE_PROXY:
         return noise
     proxy = seed_noise(make_plan([sp.spec for sp in plan.specs], get_preset(NOISE_PROXY)), workspace)
     wanted = {s.name for sp in plan.specs for s in sp.scenes}
-    for name, entry in proxy["scenes"].items():
+    for name, entry in [*proxy["scenes"].items(), *_committed_noise(committed)]:
         if name in wanted:
             noise["scenes"].setdefault(name, entry)
     return noise
+
+
+def _committed_noise(path: Path | None) -> list[tuple[str, dict[str, Any]]]:
+    """``[(scene, entry), ...]``: the ``NOISE_PROXY`` run's own scene spreads recorded in the summary at
+    ``path`` (none when there is no such file), each marked with the file and its commit."""
+    if path is None or not path.is_file():
+        return []
+    summary = json.loads(path.read_text(encoding="utf-8"))
+    commit = ((summary.get("header") or {}).get("git") or {}).get("commit") or "?"
+    scenes = (summary.get("noise") or {}).get("scenes") or {}
+    return [
+        (name, {**entry, "committed": f"{path.name} at git {commit[:7]}"})
+        for name, entry in scenes.items()
+        if entry.get("preset") == NOISE_PROXY
+    ]
 
 
 def noise_for(noise: dict[str, Any], scene_names: list[str]) -> dict[str, float]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 import torch
 
@@ -253,3 +255,18 @@ def test_tables_of_scenes_without_a_stability_run_average_several_seeds_and_judg
     assert borrowed["scenes"]["panoptic:basketball"]["preset"] == "quick"
     assert noise_for(borrowed, ["panoptic:basketball"])["PSNR"] == pytest.approx(2.5)
     assert any("| tab16 (quick run) |" in line for line in noise_markdown(borrowed))
+    # on a machine without the quick cells (a fresh standard run), the committed quick summary's spread
+    summary = tmp_path / "reports" / "summary.json"
+    summary.parent.mkdir()
+    summary.write_text(
+        json.dumps({"header": {"git": {"commit": "abcdef0123"}}, "noise": {**noise, "preset": "quick"}})
+    )
+    fresh = Workspace(tmp_path / "fresh")
+    assert run_noise(standard_plan, fresh)["scenes"] == {}
+    from_summary = run_noise(standard_plan, fresh, summary)
+    assert from_summary["scenes"]["panoptic:basketball"]["committed"] == "summary.json at git abcdef0"
+    assert noise_for(from_summary, ["panoptic:basketball"])["PSNR"] == pytest.approx(2.5)
+    assert any(
+        "| tab16 (quick run, summary.json at git abcdef0) |" in line for line in noise_markdown(from_summary)
+    )
+    assert run_noise(standard_plan, fresh, tmp_path / "nowhere.json")["scenes"] == {}
