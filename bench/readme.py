@@ -163,17 +163,23 @@ def readme_section(table: dict, published: list[dict], machine: str | None = Non
     return "\n".join(intro + lines + (notes if sources else [])) + "\n"
 
 
-def update_readme(path: str | Path, section: str, body: str) -> Path:
-    """Replace the text between ``<!-- results:<section> -->`` and ``<!-- /results:<section> -->``."""
+def split_section(path: str | Path, section: str) -> tuple[str, str]:
+    """``(text up to and including <!-- results:<section> -->, text from <!-- /results:<section> -->)``
+    of the file at ``path``; ValueError naming the file unless it has exactly one such pair."""
     path = Path(path)
     text = path.read_text(encoding="utf-8")
     start, end = f"<!-- results:{section} -->", f"<!-- /results:{section} -->"
     if text.count(start) != 1 or text.count(end) != 1 or text.index(start) > text.index(end):
         raise ValueError(f"{path}: needs exactly one '{start}' followed by one '{end}' to rewrite")
     head, rest = text.split(start, 1)
-    _, tail = rest.split(end, 1)
-    path.write_text(f"{head}{start}\n{body.rstrip()}\n{end}{tail}", encoding="utf-8")
-    return path
+    return head + start, end + rest.split(end, 1)[1]
+
+
+def update_readme(path: str | Path, section: str, body: str) -> Path:
+    """Replace the text between ``<!-- results:<section> -->`` and ``<!-- /results:<section> -->``."""
+    head, tail = split_section(path, section)
+    Path(path).write_text(f"{head}\n{body.rstrip()}\n{tail}", encoding="utf-8")
+    return Path(path)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -191,6 +197,7 @@ def main(argv: list[str] | None = None) -> int:
     experts = [e.strip() for e in args.experts.split(",") if e.strip()]
     section = args.section or args.scene.split(":", 1)[-1]
     try:
+        split_section(args.readme, section)  # before any training
         table = compare(experts, args.scene, args.preset, args.out, progress=not args.quiet)
         body = readme_section(table, published_numbers(args.scene))
         path = update_readme(args.readme, section, body)

@@ -10,6 +10,8 @@ import pytest
 from bench.paper import list_original_tables, load_original_table, load_paper_table
 from bench.readme import PUBLISHED, main, paper_name, published_numbers, readme_section
 from bench.spec import EXPERTS
+from moegs.io import to_dict
+from moegs.recipes import config_for
 
 PROFILE = "moegs/psnr_raw-ssim_3dgs-lpips_alex_legacy01"
 README = "# title\n\nintro\n\n<!-- results:mutant -->\nstale table\n<!-- /results:mutant -->\n\n## After\n"
@@ -36,6 +38,8 @@ def fake_run(out, expert, psnr, ssim=0.9, lpips=0.05, seconds=12.0):
     }
     (out / expert).mkdir(parents=True)
     (out / expert / "metrics.json").write_text(json.dumps(result))
+    config = to_dict(config_for(expert, "dnerf:mutant", "quick").config)  # the quick recipe's, as trained
+    (out / expert / "config.json").write_text(json.dumps({"config": config}))
 
 
 def printed(table, row, metrics=("PSNR", "SSIM", "LPIPS")):
@@ -107,6 +111,9 @@ def test_readme_without_markers_fails(runs, tmp_path, capsys):
     assert main(argv) == 2
     assert "<!-- results:mutant -->" in capsys.readouterr().err
     assert readme.read_text() == "# no section\n"
+    empty = tmp_path / "none"  # no finished runs: the markers fail before any training starts
+    assert main([*argv[:-2], str(empty), "--quiet"]) == 2 and not empty.exists()
+    assert "<!-- results:mutant -->" in capsys.readouterr().err
 
 
 def test_section_without_published_numbers():
