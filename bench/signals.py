@@ -16,7 +16,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +25,7 @@ from bench.presets import get_preset
 from bench.results import ResultError, read_result
 from bench.spec import METRICS
 from bench.store import Workspace
+from moegs.io import read_json
 
 REGION_KEYS = {"full": "", "dynamic": "_dynamic", "static": "_static"}
 
@@ -205,7 +205,7 @@ def _committed_noise(path: Path | None) -> list[tuple[str, dict[str, Any]]]:
     ``path`` (none when there is no such file), each marked with the file and its commit."""
     if path is None or not path.is_file():
         return []
-    summary = json.loads(path.read_text(encoding="utf-8"))
+    summary = read_json(path, "quick summary")
     commit = ((summary.get("header") or {}).get("git") or {}).get("commit") or "?"
     scenes = (summary.get("noise") or {}).get("scenes") or {}
     return [

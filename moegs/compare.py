@@ -144,8 +144,7 @@ def compare(
     from moegs.experts import get_spec, list_experts
     from moegs.io import write_json
     from moegs.recipes import config_for
-    from moegs.train.entry import finished_run
-    from moegs.train.reuse import config_changes_of
+    from moegs.train.reuse import reusable_run
 
     names = [s.name for s in list_experts() if not s.composite] if experts == ["all"] else experts
     if not names:
@@ -158,12 +157,11 @@ def compare(
     for name in names:
         run_dir = out / name
         recipe = config_for(name, scene, preset)
-        result, changed = finished_run(run_dir), []
+        result, changed = reusable_run(recipe, run_dir)
         if result is None:
             result = run_expert(recipe, run_dir, window, scenes, progress)
         else:
             skipped.append(name)
-            changed = config_changes_of(recipe, run_dir)
         rows.append({**_row(name, result, run_dir), "config_changes": changed})
     table = {
         "scene": scene,
@@ -195,10 +193,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    experts = [e.strip() for e in args.experts.split(",") if e.strip()]
-    table = compare(experts, args.scene, args.preset, args.out, args.frames, progress=not args.quiet)
     from moegs.train.reuse import describe_changes
 
+    experts = [e.strip() for e in args.experts.split(",") if e.strip()]
+    table = compare(experts, args.scene, args.preset, args.out, args.frames, progress=not args.quiet)
     for row in table["rows"]:
         lpips = "n/a" if row["lpips"] is None or math.isnan(row["lpips"]) else f"{row['lpips']:.4f}"
         print(

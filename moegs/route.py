@@ -57,8 +57,7 @@ def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress
     from moegs.data import load_scene
     from moegs.recipes import config_for
     from moegs.train.checkpoint import load_expert
-    from moegs.train.entry import finished_run
-    from moegs.train.reuse import config_changes_of, describe_changes
+    from moegs.train.reuse import describe_changes, reusable_run
 
     recipes = [config_for(n, scene_name, preset) for n in names]
     scales = {r.config.train.resolution_scale for r in recipes}
@@ -78,9 +77,10 @@ def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress
     scenes: dict = {}
     for recipe in recipes:  # a finished expert run is reused as it is, one of another config with a notice
         run_dir = out / recipe.expert
-        if finished_run(run_dir) is None:
+        result, changed = reusable_run(recipe, run_dir)
+        if result is None:
             run_expert(recipe, run_dir, frames, scenes, progress)
-        elif changed := config_changes_of(recipe, run_dir):
+        elif changed:
             print(
                 f"moegs route: reusing {run_dir}, a finished run of another config than the {preset} "
                 f"preset's (changed: {describe_changes(changed)})",

@@ -4,7 +4,7 @@
 ``config.json`` records the config it was trained with; a recipe that changed since (another ``--iterations``
 or ``--set``, a new per-scene value, a library default that moved) must not pass silently. ``moegs train``
 refuses such a folder (``finished_run_of``); ``compare`` and ``route`` reuse it, as a user may have trained
-an expert on purpose with other settings, but name the changed fields (``config_changes_of``). An
+an expert on purpose with other settings, but name the changed fields (``reusable_run``). An
 interrupted run is not affected: resuming its checkpoint already refuses another config
 (``moegs.train.loop``).
 """
@@ -38,18 +38,23 @@ def describe_changes(changed: list[str], shown: int = 6) -> str:
     return ", ".join(changed[:shown]) + more
 
 
+def reusable_run(recipe: Recipe, out_dir: str | Path) -> tuple[dict[str, Any] | None, list[str]]:
+    """``(result, changed)``: the finished run's result in ``out_dir`` (see ``finished_run``; None when no
+    run there is finished) and the fields its config changed from ``recipe``'s (``config_changes_of``;
+    empty when there is no finished run or the configs agree)."""
+    result = finished_run(out_dir)
+    return result, [] if result is None else config_changes_of(recipe, out_dir)
+
+
 def finished_run_of(recipe: Recipe, out_dir: str | Path, remedy: str) -> dict[str, Any] | None:
-    """The result of the finished run in ``out_dir`` (see ``finished_run``) when it was trained with
-    ``recipe``'s config, None when no run there is finished.
+    """The result of the finished run in ``out_dir`` when it was trained with ``recipe``'s config, None when
+    no run there is finished.
 
     Raises:
         StaleRunError: the finished run's config differs; the message names the folder, the changed fields
             and ``remedy`` (what the user can do).
     """
-    result = finished_run(out_dir)
-    if result is None:
-        return None
-    changed = config_changes_of(recipe, out_dir)
+    result, changed = reusable_run(recipe, out_dir)
     if changed:
         raise StaleRunError(
             f"{out_dir} holds a finished run of another {recipe.expert} config (changed: "
