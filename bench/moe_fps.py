@@ -15,6 +15,7 @@ median over repeats per view, median over views).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from collections.abc import Sequence
@@ -25,6 +26,7 @@ import torch
 
 from bench.results import write_json_atomic
 from moegs.data import load_scene
+from moegs.data.scene import PointCloud, Scene
 from moegs.experts import get_expert_class, list_experts
 from moegs.metrics.speed import measure_render
 from moegs.moe import RouterConfig
@@ -33,16 +35,46 @@ from moegs.moe.model import MoEGS
 DEFAULT_MOE = ("fourdgs", "ed3dgs", "ex4dgs")
 
 
-def build_experts(scene, names: Sequence[str], device: torch.device) -> tuple[dict, list[dict]]:
+def with_points(scene: Scene, n: int, seed: int = 0) -> Scene:
+    """``scene`` whose initial cloud is resampled to ``n`` points: drawn with replacement from its own
+    points, each moved by a Gaussian step of 1% of the scene's extent, so no two coincide."""
+    if scene.points is None or len(scene.points) == 0:
+        raise ValueError(f"--gaussians needs a scene with initial points; {scene.name!r} has none")
+    if n < 1:
+        raise ValueError(f"--gaussians must be >= 1, got {n}")
+    g = torch.Generator().manual_seed(seed)
+    pick = torch.randint(len(scene.points), (n,), generator=g)
+    jitter = 0.01 * scene.extent * torch.randn(n, 3, generator=g)
+    times = None if scene.points.times is None else scene.points.times[pick]
+    cloud = PointCloud(
+        scene.points.xyz[pick] + jitter,
+        scene.points.rgb[pick],
+        f"{scene.points.source}, resampled to {n}",
+        times,
+    )
+    return dataclasses.replace(scene, points=cloud)
+
+
+def quick_config(cls, uncapped: bool):
+    """The expert's quick preset; ``uncapped`` lifts its cap on initial points (``max_init_points``)."""
+    config = cls.config_class.from_preset("quick")
+    if uncapped and any(f.name == "max_init_points" for f in dataclasses.fields(config)):
+        config = dataclasses.replace(config, max_init_points=None)
+    return config
+
+
+def build_experts(
+    scene, names: Sequence[str], device: torch.device, uncapped: bool = False
+) -> tuple[dict, list[dict]]:
     """``({name: expert on device}, rows)``; a row per name with its error where building or one render
-    on ``device`` failed."""
+    on ``device`` failed. ``uncapped``: every expert starts from all of the scene's points."""
     experts, rows = {}, []
     camera = scene.test[0].camera.to(device)
     background = scene.background.to(device)
     for name in names:
         cls = get_expert_class(name)  # an unknown name raises, naming the registered experts
         try:
-            expert = cls.from_scene(scene, cls.config_class.from_preset("quick")).to(device).eval()
+            expert = cls.from_scene(scene, quick_config(cls, uncapped)).to(device).eval()
             with torch.no_grad():
                 rgb, _, frame = expert.render(camera, background)
             if rgb.device.type != device.type:
@@ -55,11 +87,22 @@ def build_experts(scene, names: Sequence[str], device: torch.device) -> tuple[di
     return experts, rows
 
 
-def measure(scene, names, moe_names, device, views: int, warmup: int, repeats: int) -> dict:
-    """Build the experts, time each one's render and MoE-GS single-pass against separate passes."""
-    cameras = [view.camera.to(device) for view in scene.test[:views]]
+def measure(
+    scene,
+    names,
+    moe_names,
+    device,
+    views: int,
+    warmup: int,
+    repeats: int,
+    uncapped: bool = False,
+    scale: float = 1.0,
+) -> dict:
+    """Build the experts, time each one's render and MoE-GS single-pass against separate passes; the
+    test cameras are scaled by ``scale`` (image size and focal length)."""
+    cameras = [view.camera.scaled(scale).to(device) for view in scene.test[:views]]
     background = scene.background.to(device)
-    experts, rows = build_experts(scene, names, device)
+    experts, rows = build_experts(scene, names, device, uncapped)
 
     def timing(fn) -> dict:
         with torch.no_grad():
@@ -69,7 +112,14 @@ def measure(scene, names, moe_names, device, views: int, warmup: int, repeats: i
     for row in rows:
         if row["ok"]:
             row.update(timing(lambda cam, e=experts[row["expert"]]: e.render(cam, background)[0]))
-    result = {"scene": scene.name, "views": len(cameras), "repeats": repeats, "experts": rows, "moe": None}
+    result = {
+        "scene": scene.name,
+        "views": len(cameras),
+        "resolution": f"{cameras[0].width}x{cameras[0].height}",
+        "repeats": repeats,
+        "experts": rows,
+        "moe": None,
+    }
     if missing := [n for n in moe_names if n not in experts]:
         result["moe"] = {
             "experts": list(moe_names),
@@ -116,12 +166,21 @@ def markdown(result: dict) -> str:
     else:
         lines.append(f"| {' + '.join(moe['experts'])} | failed: {moe['error']} | – | – | – | – |")
     device = next((row["device"] for row in result["experts"] if row["ok"]), "?")
+    resampled = result.get("gaussians")
+    command = "python -m bench.moe_fps" + (f" --gaussians {resampled}" if resampled else "")
+    command += f" --scale {result['scale']:g}" if result.get("scale", 1.0) != 1.0 else ""
+    size = (
+        f"the initial cloud resampled to {resampled} points, every expert starting from all of them"
+        if resampled
+        else "the initial clouds' size"
+    )
     lines += [
         "",
-        f"`python -m bench.moe_fps` on `{result['scene']}`, {result['views']} test views, median of "
+        f"`{command}` on `{result['scene']}`, {result['views']} test views at "
+        f"{result.get('resolution', 'the scene resolution')}, median of "
         f"{result['repeats']} synchronised renders per view; {device}; {result.get('date', '')}, torch "
         f"{result.get('torch', '?')}. Untrained experts and router: times of the fields, decoding, router "
-        "and rasterizer at the initial clouds' size, not of trained models.",
+        f"and rasterizer at {size}, not of trained models.",
     ]
     return "\n".join(lines)
 
@@ -135,6 +194,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--views", type=int, default=4, help="test views timed (default 4)")
     p.add_argument("--warmup", type=int, default=3)
     p.add_argument("--repeats", type=int, default=10)
+    p.add_argument(
+        "--gaussians",
+        type=int,
+        help="resample the scene's initial cloud to this many points and start every expert from all of "
+        "them (the paper's scenes hold a few hundred thousand Gaussians per expert)",
+    )
+    p.add_argument(
+        "--scale",
+        type=float,
+        default=1.0,
+        help="scale the test cameras (image size and focal length); the N3V stand-in's 128x96 x 10.5 is "
+        "about N3V's 1352x1014",
+    )
     p.add_argument("--json", type=Path, help="write the result here; with --from-json, read it instead")
     p.add_argument("--from-json", action="store_true", help="only build the table from --json")
     p.add_argument("--readme", type=Path, help="rewrite this README's results:moe-fps section")
@@ -146,6 +218,11 @@ def main(argv: list[str] | None = None) -> int:
     else:
         names = args.experts.split(",") if args.experts else [spec.name for spec in list_experts()]
         scene = load_scene(args.scene)
+        if args.gaussians is not None:
+            try:
+                scene = with_points(scene, args.gaussians)
+            except ValueError as exc:
+                p.error(str(exc))
         result = measure(
             scene,
             names,
@@ -154,8 +231,15 @@ def main(argv: list[str] | None = None) -> int:
             args.views,
             args.warmup,
             args.repeats,
+            uncapped=args.gaussians is not None,
+            scale=args.scale,
         )
-        result.update(date=datetime.now(UTC).strftime("%Y-%m-%d"), torch=torch.__version__)
+        result.update(
+            date=datetime.now(UTC).strftime("%Y-%m-%d"),
+            torch=torch.__version__,
+            gaussians=args.gaussians,
+            scale=args.scale,
+        )
         if args.json:
             write_json_atomic(args.json, result)
     table = markdown(result)

@@ -52,3 +52,32 @@ def test_unknown_names_and_missing_json_are_clear_errors(tmp_path, capsys):
     with pytest.raises(SystemExit):
         moe_fps.main(["--from-json", "--json", str(tmp_path / "absent.json")])
     assert "absent.json" in capsys.readouterr().err
+
+
+def test_resampled_clouds_start_every_expert_from_all_points_at_a_scaled_resolution(tmp_path):
+    """``--gaussians N`` lifts each expert's cap on initial points (DeformableGS's quick preset keeps 5k)
+    and ``--scale`` renders the test cameras larger; the table names both."""
+    out = tmp_path / "fps.json"
+    args = [*TINY, *TWO, "--gaussians", "6000", "--scale", "1.5", "--json", str(out)]
+    assert moe_fps.main(args) == 0
+    result = json.loads(out.read_text())
+    assert [row["gaussians"] for row in result["experts"]] == [6000, 6000]
+    assert result["resolution"] == "150x150"  # dnerf_like is 100x100
+    table = moe_fps.markdown(result)
+    assert "--gaussians 6000 --scale 1.5" in table and "resampled to 6000 points" in table
+
+
+def test_with_points_resamples_without_coincident_points():
+    import torch
+
+    from moegs.data import load_scene
+
+    scene = load_scene("synthetic:dnerf_like")
+    more = moe_fps.with_points(scene, 3 * len(scene.points))
+    assert len(more.points) == 3 * len(scene.points) and more.test is scene.test
+    assert len(torch.unique(more.points.xyz, dim=0)) == len(more.points)
+    lo, hi = scene.points.xyz.min(0).values, scene.points.xyz.max(0).values
+    margin = 0.1 * scene.extent  # steps of 1% of the extent: none strays far
+    assert ((more.points.xyz > lo - margin) & (more.points.xyz < hi + margin)).all()
+    with pytest.raises(ValueError, match="must be >= 1"):
+        moe_fps.with_points(scene, 0)

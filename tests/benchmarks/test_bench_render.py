@@ -1,9 +1,8 @@
 """Rasterizer benchmarks (pytest-benchmark; skipped unless ``--benchmark-enable``, e.g. ``tox -e bench``).
 
-Scenes follow ``specs/cpu_feasibility.md``: N Gaussians in the frustum at depth 2-5, log-normal
-scales proportional to N^-1/2 (about the same per-pixel depth complexity for every N), opacity
-sigmoid(randn), fx = width, RGB. "fwd" runs under ``no_grad``; "fwd+bwd" includes the projection
-and the backward to means, quats, scales, opacities and colours.
+Scenes and render calls: ``bench.raster_cases`` (shared with ``bench.single_pass``). "fwd" runs under
+``no_grad``; "fwd+bwd" includes the projection and the backward to means, quats, scales, opacities and
+colours.
 
 Each case also records, in ``benchmark.extra_info``, the peak RSS of one render in a fresh
 subprocess (``VmHWM``, see ``proc_status_mb``; tracemalloc misses torch's allocator) and the RSS
@@ -23,9 +22,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from moegs import Camera, GaussianFrame
-from moegs.camera import intrinsics
-from moegs.render import rasterize, rasterize_multi
+from bench.raster_cases import case_renderer, make_scene, run_once
 from moegs.render._torch import _bbox_pixels
 from moegs.render.projection import covariance_3d, project
 
@@ -43,24 +40,6 @@ RATIO_ROUNDS = 25  # the K = 3 cases are compared with each other: more rounds, 
 # skipped: with the default 3 GB that is torch fwd+bwd at 100k / 512².
 TORCH_BYTES_PER_PAIR = {False: 160, True: 200}
 TORCH_BUDGET_MB = float(os.environ.get("MOEGS_BENCH_TORCH_MB", 3072))
-
-
-def make_scene(n: int, res: int, *, seed: int = 0, device: str = "cpu") -> tuple[GaussianFrame, Camera]:
-    """The feasibility-study scene: ``n`` Gaussians seen by a ``res x res`` camera."""
-    gen = torch.Generator().manual_seed(seed)
-    camera = Camera(
-        K=intrinsics(res, res, res / 2, res / 2), world_to_camera=torch.eye(4), width=res, height=res
-    )
-    z = 2 + 3 * torch.rand(n, generator=gen)
-    xy = (torch.rand(n, 2, generator=gen) - 0.5) * z[:, None]  # inside the 2 x atan(0.5) FoV
-    frame = GaussianFrame(
-        means=torch.cat([xy, z[:, None]], dim=1),
-        quats=torch.nn.functional.normalize(torch.randn(n, 4, generator=gen), dim=-1),
-        scales=torch.exp(torch.randn(n, 3, generator=gen) * 0.3) * 3.0 / n**0.5,
-        opacities=torch.sigmoid(torch.randn(n, generator=gen)),
-        colors=torch.rand(n, 3, generator=gen),
-    )
-    return frame.to(device), camera.to(device)
 
 
 def torch_memory_mb(n: int, res: int, backward: bool) -> float:
@@ -86,23 +65,6 @@ def backends() -> list:
     ]
 
 
-def _leaves(frame: GaussianFrame) -> GaussianFrame:
-    """The same frame with fresh leaf tensors that require grad."""
-    names = ("means", "quats", "scales", "opacities", "colors")
-    return GaussianFrame(**{k: getattr(frame, k).detach().clone().requires_grad_(True) for k in names})
-
-
-def _run(render, frame, backward: bool) -> None:
-    """One render (and backward), synchronised on CUDA."""
-    if backward:
-        render(frame).sum().backward()
-    else:
-        with torch.no_grad():
-            render(frame)
-    if frame.device.type == "cuda":
-        torch.cuda.synchronize()
-
-
 _MEMORY_SCRIPT = textwrap.dedent(
     """
     import json, sys, torch
@@ -112,7 +74,7 @@ _MEMORY_SCRIPT = textwrap.dedent(
     torch.set_num_threads(case.pop("threads"))
     render, frame = b.case_renderer(**case)
     before = b.proc_status_mb("VmRSS")
-    b._run(render, frame, case["backward"])
+    b.run_once(render, frame, case["backward"])
     print(json.dumps({{"rss_before_mb": before, "peak_rss_mb": b.proc_status_mb("VmHWM")}}))
     """
 )
@@ -138,7 +100,7 @@ def peak_memory(**case) -> dict[str, float]:
     if case["device"] == "cuda":
         torch.cuda.reset_peak_memory_stats()
         render, frame = case_renderer(**case)
-        _run(render, frame, case["backward"])
+        run_once(render, frame, case["backward"])
         return {"peak_cuda_allocated_mb": torch.cuda.max_memory_allocated() / 2**20}
     if not Path("/proc/self/status").exists():
         return {}  # not Linux: no per-process peak we can trust
@@ -146,33 +108,6 @@ def peak_memory(**case) -> dict[str, float]:
     arg = json.dumps({**case, "threads": torch.get_num_threads()})
     done = subprocess.run([sys.executable, "-c", script, arg], capture_output=True, text=True, check=True)
     return json.loads(done.stdout.strip().splitlines()[-1])
-
-
-def case_renderer(
-    *,
-    n: int,
-    res: int,
-    backend: str,
-    backward: bool,
-    experts: int = 1,
-    single_pass: bool = True,
-    device="cpu",
-):
-    """``(render, frame)``: ``render(frame)`` returns a tensor to sum for the backward."""
-    frame, camera = make_scene(n * experts, res, device=device)
-    if backward:
-        frame = _leaves(frame)
-    bounds = [(k * n, (k + 1) * n) for k in range(experts)]
-
-    def render(f: GaussianFrame) -> torch.Tensor:
-        if experts == 1:
-            return rasterize(f, camera, backend=backend).image
-        parts = [f.select(slice(a, b)) for a, b in bounds]
-        if single_pass:
-            return rasterize_multi(parts, camera, backend=backend).images
-        return torch.stack([rasterize(p, camera, backend=backend).image for p in parts])
-
-    return render, frame
 
 
 def _bench(benchmark, rounds: int = ROUNDS, **case) -> None:
@@ -185,7 +120,7 @@ def _bench(benchmark, rounds: int = ROUNDS, **case) -> None:
 
         benchmark.extra_info["device_name"] = torch.cuda.get_device_name()
         benchmark.extra_info["versions"] = f"torch {torch.__version__}, gsplat {gsplat.__version__}"
-    benchmark.pedantic(_run, args=(render, frame, case["backward"]), rounds=rounds, warmup_rounds=WARMUP)
+    benchmark.pedantic(run_once, args=(render, frame, case["backward"]), rounds=rounds, warmup_rounds=WARMUP)
 
 
 @pytest.mark.parametrize("backend", backends())
@@ -217,7 +152,7 @@ def test_gsplat_torch_reference(benchmark, n, res, monkeypatch):
     monkeypatch.setattr(_cuda, "is_installed", lambda: True)
     render, frame = case_renderer(n=n, res=res, backend="cuda", backward=True)
     benchmark.extra_info.update(n=n, res=res, backend="gsplat-torch-reference", backward=True)
-    benchmark.pedantic(_run, args=(render, frame, True), rounds=ROUNDS, warmup_rounds=WARMUP)
+    benchmark.pedantic(run_once, args=(render, frame, True), rounds=ROUNDS, warmup_rounds=WARMUP)
 
 
 @pytest.mark.parametrize("backend", backends())
