@@ -148,8 +148,8 @@ def write_outputs(
 ) -> dict:
     """Tables and plots for ``selected``, the report for every spec of ``plan``; a ``real_only`` preset
     also writes its paper | standard | quick tables (``bench.sidebyside``). ``quick_summary``: the quick
-    outputs' ``summary.json``, whose seed spreads a run at another preset borrows for the scenes whose
-    quick cells are not in ``workspace`` (``bench.signals.run_noise``)."""
+    outputs' ``summary.json``, whose seed spreads a quick run pools with its own and a run at another
+    preset borrows for the scenes whose quick cells are not in ``workspace`` (``bench.signals.run_noise``)."""
     from bench.latex import write_index, write_table
     from bench.plots import plot_spec
     from bench.report import spec_report, write_report

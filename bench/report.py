@@ -260,6 +260,9 @@ def noise_markdown(noise: dict[str, Any]) -> list[str]:
         borrowed = entry.get("preset") not in (None, noise.get("preset"))
         run = f"{entry['preset']} run" + (f", {entry['committed']}" if entry.get("committed") else "")
         source = ", ".join(entry["source"]) + (f" ({run})" if borrowed else "")
+        if entry.get("pooled_with"):
+            own = (entry.get("own_metrics") or {}).get("PSNR")
+            source += f"; pooled with {entry['pooled_with']} (this run's own largest: {_num(own)})"
         lines.append(
             f"| {label} | {entry['seeds']} | {source} | {rows} "
             f"| {_num(metrics.get('PSNR'))} | {_num(metrics.get('PSNR dynamic'))} |"
