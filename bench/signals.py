@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.cells._eval import REGIME_PREFIX
+from bench.keys import digest
 from bench.plan import Plan, make_plan
 from bench.presets import get_preset
 from bench.results import ResultError, read_result
@@ -136,15 +137,19 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
     ``metrics`` (with its ``source``) is the largest spread measured on a stand-in: the noise of a scene
     without repeated trainings of its own (``noise_for``). Empty when nothing has two finished seeds."""
     per_seed: dict[tuple[str, str, str, str | None], dict[int, dict[str, Any]]] = {}
+    task_keys: dict[tuple[str, str, str, str | None], set[str]] = {}
     real: dict[str, bool] = {}
     scenes: dict[str, dict[str, Any]] = {}
+    cells: dict[str, set[str]] = {}
     for sp, slot, result in _ok_results(plan, workspace, None, once=False):
         real[slot.scene.name] = slot.scene.real
         key = (slot.scene.name, sp.spec.id, slot.row, slot.budget_column)
         per_seed.setdefault(key, {})[slot.seed] = result["metrics"]
-    for (scene, spec_id, row, _column), results in per_seed.items():
+        task_keys.setdefault(key, set()).add(slot.task.key)
+    for (scene, spec_id, row, column), results in per_seed.items():
         if len(results) < 2:
             continue
+        cells.setdefault(scene, set()).update(task_keys[(scene, spec_id, row, column)])
         entry = scenes.setdefault(
             scene,
             {
@@ -167,6 +172,8 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
             spread = max(values) - min(values)
             spreads[name] = max(spreads.get(name, 0.0), spread)
             entry["metrics"][name] = max(entry["metrics"].get(name, 0.0), spread)
+    for scene, entry in scenes.items():
+        entry["cells"] = digest(sorted(cells[scene]))
     return {"preset": plan.preset.name, "scenes": scenes, **_stand_in_spread(scenes)}
 
 
@@ -191,10 +198,12 @@ def run_noise(plan: Plan, workspace: Workspace, committed: Path | None = None) -
     """``seed_noise`` of ``plan``, pooled with and completed by the spreads recorded in ``committed`` (the
     ``NOISE_PROXY`` preset's ``summary.json``, e.g. the committed quick outputs).
 
-    * Pooled: where this run measured a scene's spread itself at the preset ``committed`` recorded it
-      for, each metric is judged against the larger of the two runs' own spreads (``_pool``). A range
-      over three seeds bounds the noise only loosely: the same code and seeds on two machines measured
-      0.78 and 0.26 dB on the N3V stand-in, and judged 12 of 99 claims differently.
+    * Pooled: where ``committed`` recorded a scene's spread from the same cells (the same evaluation
+      keys: code, configs and seeds, ``"cells"``) that this run measured it from, i.e. the same run on
+      another machine, each metric is judged against the larger of the two (``_pool``). A range over
+      three seeds bounds the noise only loosely: the same cells on two machines measured 0.78 and 0.26 dB
+      on the N3V stand-in and judged 12 of 99 claims differently. Pooled spreads are passed on by the
+      summary, so a warm re-run judges as the run it repeats; other cells (other code) never pool.
     * Completed: a scene with no spread of its own borrows the one the ``NOISE_PROXY`` preset measured
       on it with the same specs in the same workspace, or else the one in ``committed`` (for a run on a
       machine without the quick cells). A borrowed entry keeps ``"preset"`` (and, from a summary,
@@ -204,7 +213,7 @@ def run_noise(plan: Plan, workspace: Workspace, committed: Path | None = None) -
     noise = seed_noise(plan, workspace)
     recorded = dict(_committed_noise(committed))
     for name, entry in noise["scenes"].items():
-        if (other := recorded.get(name)) is not None and other["preset"] == entry["preset"]:
+        if (other := recorded.get(name)) is not None and other.get("cells") == entry["cells"]:
             _pool(entry, other)
     noise.update(_stand_in_spread(noise["scenes"]))
     if plan.preset.name == NOISE_PROXY:
@@ -218,11 +227,10 @@ def run_noise(plan: Plan, workspace: Workspace, committed: Path | None = None) -
 
 
 def _pool(entry: dict[str, Any], other: dict[str, Any]) -> None:
-    """Raise ``entry``'s spreads to ``other``'s own (another run's, on the same scene and preset) where
+    """Raise ``entry``'s spreads to ``other``'s (the same cells' spreads recorded by another run) where
     those are larger; ``entry`` then keeps its own as ``own_metrics`` and names the other run in
-    ``pooled_with``. Only own spreads are pooled, so repeated runs never accumulate older runs' spreads."""
-    theirs = other.get("own_metrics") or other["metrics"]
-    larger = {name: v for name, v in theirs.items() if v > entry["metrics"].get(name, 0.0)}
+    ``pooled_with``."""
+    larger = {name: v for name, v in other["metrics"].items() if v > entry["metrics"].get(name, 0.0)}
     if larger:
         entry["own_metrics"] = dict(entry["metrics"])
         entry["metrics"].update(larger)
