@@ -136,20 +136,19 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
 
     ``metrics`` (with its ``source``) is the largest spread measured on a stand-in: the noise of a scene
     without repeated trainings of its own (``noise_for``). Empty when nothing has two finished seeds."""
-    per_seed: dict[tuple[str, str, str, str | None], dict[int, dict[str, Any]]] = {}
-    task_keys: dict[tuple[str, str, str, str | None], set[str]] = {}
+    per_seed: dict[tuple[str, str, str, str | None], dict[int, tuple[str, dict[str, Any]]]] = {}
     real: dict[str, bool] = {}
     scenes: dict[str, dict[str, Any]] = {}
-    cells: dict[str, set[str]] = {}
+    cells: dict[str, set[str]] = {}  # per scene: the evaluation keys its spreads come from
     for sp, slot, result in _ok_results(plan, workspace, None, once=False):
         real[slot.scene.name] = slot.scene.real
         key = (slot.scene.name, sp.spec.id, slot.row, slot.budget_column)
-        per_seed.setdefault(key, {})[slot.seed] = result["metrics"]
-        task_keys.setdefault(key, set()).add(slot.task.key)
-    for (scene, spec_id, row, column), results in per_seed.items():
-        if len(results) < 2:
+        per_seed.setdefault(key, {})[slot.seed] = (slot.task.key, result["metrics"])
+    for (scene, spec_id, row, _column), seeds in per_seed.items():
+        if len(seeds) < 2:
             continue
-        cells.setdefault(scene, set()).update(task_keys[(scene, spec_id, row, column)])
+        cells.setdefault(scene, set()).update(task_key for task_key, _ in seeds.values())
+        results = [metrics for _, metrics in seeds.values()]
         entry = scenes.setdefault(
             scene,
             {
@@ -166,7 +165,7 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
             entry["source"].append(spec_id)
         spreads = entry["rows"].setdefault(row, {})
         for name, m in METRICS.items():
-            values = [r.get(m.key) for r in results.values()]
+            values = [r.get(m.key) for r in results]
             if any(v is None for v in values):
                 continue
             spread = max(values) - min(values)
@@ -238,7 +237,7 @@ def _pool(entry: dict[str, Any], other: dict[str, Any]) -> None:
 
 
 def _committed_noise(path: Path | None) -> list[tuple[str, dict[str, Any]]]:
-    """``[(scene, entry), ...]``: the ``NOISE_PROXY`` run's own scene spreads recorded in the summary at
+    """``[(scene, entry), ...]``: the ``NOISE_PROXY`` run's scene spreads recorded in the summary at
     ``path`` (none when there is no such file), each marked with the file and its commit."""
     if path is None or not path.is_file():
         return []

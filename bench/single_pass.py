@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import statistics
 import sys
 import time
@@ -27,17 +26,9 @@ import torch
 from bench.raster_cases import case_renderer, run_once
 from bench.rasterizer import SINGLE_PASS_TARGET
 from bench.results import write_json_atomic
+from moegs.metrics.speed import _describe as describe_device  # the suite's device wording
 
 DEFAULT_SIZES = ((5_000, 128), (100_000, 512), (300_000, 1024))
-
-
-def quantile(values: list[float], q: float) -> float:
-    """Linear-interpolated quantile ``q`` in [0, 1] of a non-empty list."""
-    ordered = sorted(values)
-    pos = q * (len(ordered) - 1)
-    lo = int(pos)
-    hi = min(lo + 1, len(ordered) - 1)
-    return ordered[lo] + (ordered[hi] - ordered[lo]) * (pos - lo)
 
 
 def paired_times(
@@ -67,12 +58,13 @@ def paired_times(
 def summarise(single_ms: list[float], separate_ms: list[float]) -> dict:
     """Medians of both modes and the per-round speed-up (separate / single): median, 10% and 90%."""
     ratios = [b / a for a, b in zip(single_ms, separate_ms, strict=True)]
+    deciles = statistics.quantiles(ratios, n=10, method="inclusive") if len(ratios) > 1 else ratios * 9
     return {
         "single_ms": statistics.median(single_ms),
         "separate_ms": statistics.median(separate_ms),
         "speedup": statistics.median(ratios),
-        "speedup_p10": quantile(ratios, 0.1),
-        "speedup_p90": quantile(ratios, 0.9),
+        "speedup_p10": deciles[0],
+        "speedup_p90": deciles[-1],
         "rounds": len(ratios),
     }
 
@@ -143,12 +135,6 @@ def parse_sizes(text: str) -> list[tuple[int, int]]:
     return sizes
 
 
-def device_name(backend: str) -> str:
-    if backend == "cuda":
-        return f"cuda ({torch.cuda.get_device_name()})"
-    return f"cpu ({platform.processor() or platform.machine()}, {torch.get_num_threads()} threads)"
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.single_pass", description=__doc__.split("\n\n")[0])
     p.add_argument(
@@ -202,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
             "experts": args.experts,
             "rounds": args.rounds,
             "warmup": args.warmup,
-            "device": device_name(args.backend),
+            "device": describe_device(torch.device("cuda" if args.backend == "cuda" else "cpu")),
             "date": datetime.now(UTC).strftime("%Y-%m-%d"),
             "torch": torch.__version__,
             "cases": cases,
