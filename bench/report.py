@@ -33,6 +33,7 @@ class SpecReport:
     status: str
     scenes: list[str]
     rows: dict[str, str]
+    values: list[dict[str, Any]]
     claims: list[dict[str, Any]]
     deltas: list[dict[str, Any]]
     missing: list[str]
@@ -132,6 +133,7 @@ def spec_report(
         status=_status(values, preset),
         scenes=[s.label for s in values.plan.scenes],
         rows=values.row_statuses(),
+        values=values.measured(),
         claims=claims,
         deltas=values.deltas()[:5],
         missing=values.missing_pieces(),

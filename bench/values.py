@@ -244,6 +244,21 @@ class SpecValues:
         return list(selector)
 
     # ------------------------------------------------------------------ summaries
+    def measured(self) -> list[dict[str, Any]]:
+        """Every cell we computed: ``{"row", "column", "metric", "ours", "paper"}`` (``paper``: its value in
+        the same cell, ``None`` where the paper prints none or ours ran on a stand-in), table order."""
+        return [
+            {
+                "row": row,
+                "column": col,
+                "metric": m,
+                "ours": cell.value,
+                "paper": self.paper.get(row, col, m) if cell.comparable else None,
+            }
+            for (row, col, m), cell in self.cells.items()
+            if cell.value is not None
+        ]
+
     def deltas(self) -> list[dict[str, Any]]:
         """Every comparable (ours - paper), largest magnitude first."""
         out = []

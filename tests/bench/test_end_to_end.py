@@ -161,6 +161,10 @@ def test_plots_and_report(run):
         rep["status"].startswith("reproduced at tiny preset") and "real data (dnerf:mutant)" in rep["status"]
     )
     assert rep["latex"] == f"../tables/{spec.id}.tex"  # no absolute paths of this machine
+    # our numbers, machine-readable: every computed row on the real scene, beside the paper's value
+    psnr = {v["row"]: v for v in rep["values"] if v["column"] == "Mutant" and v["metric"] == "PSNR"}
+    assert set(psnr) == {row for row, status in rep["rows"].items() if status == "ok"} != set()
+    assert all(5.0 < v["ours"] < 60.0 and v["paper"] > 30.0 for v in psnr.values())
     # motion evidence: every expert scored on the full image and on D-NeRF's object / background regions
     assert summary["experts"], "one row per expert and scene"
     for row in summary["experts"]:
