@@ -261,22 +261,7 @@ class SpecValues:
 
     def deltas(self) -> list[dict[str, Any]]:
         """Every comparable (ours - paper), largest magnitude first."""
-        out = []
-        for (row, col, m), cell in self.cells.items():
-            if cell.value is None or not cell.comparable:
-                continue
-            p = self.paper.get(row, col, m)
-            if p is not None:
-                out.append(
-                    {
-                        "row": row,
-                        "column": col,
-                        "metric": m,
-                        "ours": cell.value,
-                        "paper": p,
-                        "delta": cell.value - p,
-                    }
-                )
+        out = [{**v, "delta": v["ours"] - v["paper"]} for v in self.measured() if v["paper"] is not None]
         return sorted(out, key=lambda d: -abs(d["delta"]))
 
     def row_statuses(self) -> dict[str, str]:
