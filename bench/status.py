@@ -19,9 +19,9 @@ from typing import Any
 from bench.readme import paper_name, update_readme
 from moegs.io import read_json
 
-REPO = Path(__file__).resolve().parents[1]
-QUICK = REPO / "reports" / "summary.json"
-STANDARD = REPO / "reports" / "standard" / "summary.json"
+QUICK = Path("reports") / "summary.json"
+STANDARD = Path("reports") / "standard" / "summary.json"
+"""Defaults, relative to the working directory (where ``bench.all`` writes its outputs)."""
 
 VERDICTS = ("held", "failed", "within noise", "n/a")
 MOTION_SCENE, MOTION_RECIPE = "synthetic:n3v_like", "n3v"

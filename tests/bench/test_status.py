@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 from bench.readme import split_section
 from bench.status import (
     QUICK,
-    REPO,
     STANDARD,
     claim_counts,
     main,
@@ -17,6 +17,8 @@ from bench.status import (
     section,
 )
 from moegs.io import read_json
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _summary(claims, experts=(), routing=(), values=(), minutes=1.0):
@@ -43,7 +45,7 @@ def test_readme_section_is_the_committed_summaries():
     """The README's table says what the committed outputs say: regenerate it when they change."""
     head, _ = split_section(REPO / "README.md", "status")
     body = (REPO / "README.md").read_text().split(head, 1)[1].split("<!-- /results:status -->", 1)[0]
-    assert body.strip() == section(read_json(QUICK), read_json(STANDARD)).strip()
+    assert body.strip() == section(read_json(REPO / QUICK), read_json(REPO / STANDARD)).strip()
 
 
 def test_counts_floors_and_routing():
