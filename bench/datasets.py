@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from bench.spec import by_name
+
 
 @dataclass(frozen=True)
 class Dataset:
@@ -45,9 +47,8 @@ class Dataset:
         raise KeyError(f"{self.name}: unknown scene {scene!r}; scenes: {self.scene_names()}")
 
 
-DATASETS: dict[str, Dataset] = {
-    d.name: d
-    for d in (
+DATASETS: dict[str, Dataset] = by_name(
+    (
         Dataset(
             "n3v",
             "N3V (Neural 3D Video)",
@@ -123,8 +124,9 @@ DATASETS: dict[str, Dataset] = {
             paper_protocol={"resolution_scale": 1.0},  # 800x800 (dynamic-GS protocol), white background
             multiview=False,
         ),
-    )
-}
+    ),
+    "datasets",
+)
 
 
 def get_dataset(name: str) -> Dataset:

@@ -14,6 +14,8 @@ import os
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
+from bench.spec import by_name
+
 PRESET_ENV = "MOEGS_PRESET"
 
 
@@ -177,9 +179,8 @@ STANDARD = replace(
 )
 """``quick`` with the real scenes trained longer (see the fields it replaces)."""
 
-PRESETS: dict[str, BenchPreset] = {
-    p.name: p
-    for p in (
+PRESETS: dict[str, BenchPreset] = by_name(
+    (
         BenchPreset(
             "tiny",
             "tiny (tests): 1/16-resolution real scenes, 48x36 stand-ins with 6 frames, 40 training steps",
@@ -220,8 +221,9 @@ PRESETS: dict[str, BenchPreset] = {
             checkpoint_every=2000,
             reduced=False,
         ),
-    )
-}
+    ),
+    "presets",
+)
 
 
 def default_preset() -> str:

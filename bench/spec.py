@@ -14,10 +14,12 @@ Axes:
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 AXES = ("scenes", "metrics", "seeds", "budgets", "none")
 
@@ -40,6 +42,17 @@ MOE_SETS: dict[int, tuple[str, ...]] = {
 }
 
 
+def by_name(items: Iterable[T], what: str) -> dict[str, T]:
+    """``{item.name: item}`` in the given order; a repeated name is an error (a dict display would keep
+    the last one silently). ``what`` names the items in that error."""
+    named: dict[str, T] = {}
+    for item in items:
+        if item.name in named:
+            raise ValueError(f"two {what} are named {item.name!r}")
+        named[item.name] = item
+    return named
+
+
 @dataclass(frozen=True)
 class Metric:
     """A reported quantity: printed name, key in a result's ``metrics``, direction, decimals."""
@@ -51,9 +64,8 @@ class Metric:
     unit: str = ""
 
 
-METRICS: dict[str, Metric] = {
-    m.name: m
-    for m in (
+METRICS: dict[str, Metric] = by_name(
+    (
         Metric("PSNR", "psnr", True, 2, "dB"),
         Metric("SSIM", "ssim", True, 3),
         Metric("LPIPS", "lpips", False, 3),
@@ -77,8 +89,9 @@ METRICS: dict[str, Metric] = {
         Metric("Winners", "winners", True, 0),
         Metric("Switches", "switches", True, 0),
         Metric("Gate experts", "gate_experts", True, 0),
-    )
-}
+    ),
+    "metrics",
+)
 
 
 def metric(name: str) -> Metric:

@@ -45,6 +45,7 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     assert "| static | 0.0625 (50x50) | 20 |" in written and "python -m bench.convergence --scene" in written
     version = cells[0]["code_version"]
     assert f"library code version {version} (git " in written and "1 torch thread(s) per cell" in written
+    assert f"cells run on {cells[0]['machine']};" in written
     section = "\n".join(convergence_markdown(tmp_path / "reports"))
     assert "![dnerf_mutant](convergence/dnerf_mutant.png)" in section and "| static | 0.0625" in section
 
@@ -78,6 +79,19 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     assert convergence.main(args) == 0
     assert recomputed == [20] and "| static | 0.0625 (50x50) | 20 | " in readme.read_text()
     assert json.loads(cell.read_text())["psnr"] == 11.0
+
+
+def test_provenance_names_the_machine_of_every_cell():
+    """A study may gather cells computed on several machines: the footer names each, not the machine
+    that drew the table."""
+    cells = [
+        {"machine": "Intel Xeon, 2 logical CPUs", "code_version": "v1", "git": "a" * 40, "threads": 1},
+        {"machine": "AMD EPYC, 2 logical CPUs", "code_version": "v1", "git": "b" * 40, "threads": 1},
+    ]
+    words = convergence.provenance(cells)
+    assert words.startswith("cells run on AMD EPYC, 2 logical CPUs; Intel Xeon, 2 logical CPUs; ")
+    assert "library code version v1 (git aaaaaaaaaa, bbbbbbbbbb), 1 torch thread(s) per cell" in words
+    assert "cells run on unrecorded;" in convergence.provenance([{"code_version": "v1"}])
 
 
 def test_cli_rejects_a_thread_count_below_one(capsys):

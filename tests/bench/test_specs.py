@@ -17,8 +17,23 @@ from bench.paper import (
     paper_tex_path,
 )
 from bench.registry import TABLE_IDS, figure_ids, get_spec, list_specs, normalize_id, parse_selection
-from bench.spec import METRICS, Spec
+from bench.spec import METRICS, Metric, Spec, by_name
 from bench.values import AVERAGE, PaperValues
+
+
+def test_registries_keep_their_order_and_refuse_a_repeated_name():
+    from bench.datasets import DATASETS
+    from bench.presets import PRESETS
+
+    assert list(PRESETS) == ["tiny", "quick", "standard", "paper"] and list(METRICS)[:3] == [
+        "PSNR",
+        "SSIM",
+        "LPIPS",
+    ]
+    assert all(name == item.name for table in (METRICS, DATASETS, PRESETS) for name, item in table.items())
+    twice = (Metric("PSNR", "psnr", True, 2), Metric("PSNR", "psnr_x", True, 2))
+    with pytest.raises(ValueError, match="two metrics are named 'PSNR'"):
+        by_name(twice, "metrics")
 
 
 def test_one_spec_per_paper_table():
