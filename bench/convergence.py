@@ -13,6 +13,10 @@ changed (``cell_code_version``, the bench's rule for its own cells): a study's t
 library version, which its README footer names. The figure (PSNR against iterations and against
 minutes on this machine) and a markdown table go to ``--out``.
 
+``--num-points N`` loads a scene that stores no initial cloud with N random points instead of its
+loader's default (the originals' 100k on D-NeRF; the bench presets load 5k): those cells and outputs
+carry a ``-pN`` suffix.
+
 The scaling rule is ``bench.schedules``'s (the ``standard`` bench preset trains with the same).
 """
 
@@ -35,8 +39,16 @@ def cell_code_version(expert: str, scene_name: str) -> str:
     return task_code_version("expert", frozenset({expert}), scene_name.partition(":")[0])
 
 
-def run_cell(expert: str, scene_name: str, resolution: float, iterations: int, progress: bool) -> dict:
-    """Train and score one cell (see the module docstring); a JSON-ready record."""
+def run_cell(
+    expert: str,
+    scene_name: str,
+    resolution: float,
+    iterations: int,
+    progress: bool,
+    num_points: int | None = None,
+) -> dict:
+    """Train and score one cell (see the module docstring); a JSON-ready record. ``num_points``: initial
+    points of a scene without a stored cloud (None: the loader's default, as the originals load it)."""
     import torch
 
     from bench.cells._eval import psnr_upsampled
@@ -52,7 +64,8 @@ def run_cell(expert: str, scene_name: str, resolution: float, iterations: int, p
         {"train.resolution_scale": resolution, "train.max_eval_views": None, "train.eval_every": 0}
     )
     recipe = config_for(expert, scene_name, "quick", overrides=overrides)
-    scene = load_scene(scene_name, **recipe.load_kwargs)
+    load = recipe.load_kwargs | ({"num_points": num_points} if num_points is not None else {})
+    scene = load_scene(scene_name, **load)
     start = time.perf_counter()
     model, result = train_recipe(recipe, scene, progress=progress)
     seconds = time.perf_counter() - start
@@ -66,6 +79,7 @@ def run_cell(expert: str, scene_name: str, resolution: float, iterations: int, p
         "train_minutes": result["train_seconds"] / 60.0,
         "minutes": seconds / 60.0,
         "num_gaussians": result["num_gaussians"],
+        "num_points": num_points,
         "test_views": test["num_views"],
         "psnr": test["psnr"],
         "psnr_dynamic": test.get("psnr_dynamic"),
@@ -88,8 +102,16 @@ def run_cell(expert: str, scene_name: str, resolution: float, iterations: int, p
     return record
 
 
-def cell_path(workspace: Path, expert: str, scene: str, resolution: float, iterations: int) -> Path:
-    return workspace / scene.replace(":", "_") / f"{expert}-r{resolution:g}-n{iterations}.json"
+def cell_path(
+    workspace: Path,
+    expert: str,
+    scene: str,
+    resolution: float,
+    iterations: int,
+    num_points: int | None = None,
+) -> Path:
+    points = "" if num_points is None else f"-p{num_points}"
+    return workspace / scene.replace(":", "_") / f"{expert}-r{resolution:g}-n{iterations}{points}.json"
 
 
 def run_study(
@@ -102,6 +124,7 @@ def run_study(
     force: bool = False,
     progress: bool = True,
     run: bool = True,
+    num_points: int | None = None,
 ) -> tuple[list[dict], list[str]]:
     """Every (expert, resolution, N) cell not beyond ``limits[resolution]``, cached under ``workspace``;
     a cached cell of other library code is recomputed. With ``run=False`` nothing is trained: the
@@ -115,7 +138,7 @@ def run_study(
             for n in iterations:
                 if n > (limits or {}).get(resolution, math.inf):
                     continue
-                path = cell_path(workspace, expert, scene, resolution, n)
+                path = cell_path(workspace, expert, scene, resolution, n, num_points)
                 why = "computing"
                 if path.is_file() and not force:
                     cached = read_json(path, "convergence cell")
@@ -127,7 +150,7 @@ def run_study(
                     missing.append(f"{expert} at {resolution:g}x, N = {n}")
                     continue
                 print(f"[convergence] {why}: {expert} on {scene} at {resolution:g}x, N = {n}", flush=True)
-                records.append(run_cell(expert, scene, resolution, n, progress))
+                records.append(run_cell(expert, scene, resolution, n, progress, num_points))
                 write_json(path, records[-1])
     return records, missing
 
@@ -232,9 +255,15 @@ def provenance(records: list[dict]) -> str:
         values = sorted({str(r.get(key) or "unrecorded") for r in records})
         return sep.join(v[:10] if key == "git" else v for v in values)
 
+    points = {r.get("num_points") for r in records}
+    init = (
+        ""
+        if points == {None}
+        else f", initial points {distinct('num_points')} ('unrecorded': the loader's default)"
+    )
     return (
         f"cells run on {distinct('machine', '; ')}; library code version {distinct('code_version')} "
-        f"(git {distinct('git')}), {distinct('threads')} torch thread(s) per cell"
+        f"(git {distinct('git')}), {distinct('threads')} torch thread(s) per cell{init}"
     )
 
 
@@ -255,6 +284,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--readme", type=Path, help="also rewrite this README's results:<section> section")
     p.add_argument("--section", default="convergence", help="README section (one per scene studied)")
     p.add_argument("--threads", type=int, help="torch threads (default: torch's)")
+    p.add_argument(
+        "--num-points", type=int, help="initial points where the scene stores none (default: the loader's)"
+    )
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--no-run", action="store_true", help="train nothing: draw the cells already computed")
     args = p.parse_args(argv)
@@ -267,6 +299,8 @@ def main(argv: list[str] | None = None) -> int:
             scaled_overrides(expert, args.scene, QUICK_ITERATIONS)  # unknown experts fail before any work
         if args.threads is not None and args.threads < 1:
             raise ValueError(f"--threads must be >= 1, got {args.threads}")
+        if args.num_points is not None and args.num_points < 1:
+            raise ValueError(f"--num-points must be >= 1, got {args.num_points}")
     except ValueError as err:
         p.exit(2, f"bench.convergence: {err}\n")
     import torch
@@ -276,14 +310,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         records, missing = run_study(
             args.scene, experts, iterations, resolutions, args.workspace, limits, args.force,
-            not args.no_progress, run=not args.no_run,
+            not args.no_progress, run=not args.no_run, num_points=args.num_points,
         )  # fmt: skip
     finally:
         torch.set_num_threads(threads)
     if not records:
         p.exit(2, "bench.convergence: no cell of this library computed yet (run without --no-run)\n")
     paper = paper_values(args.scene, experts)
-    stem = args.scene.replace(":", "_")
+    stem = args.scene.replace(":", "_") + ("" if args.num_points is None else f"-p{args.num_points}")
     plot(records, paper, f"Convergence on {args.scene}", args.out / f"{stem}.png")
     table = markdown(records, paper)
     (args.out / f"{stem}.md").write_text(table + "\n")

@@ -22,7 +22,7 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     args = ["--scene", SCENE, "--experts", "static", "--iterations", "10,20", "--resolutions", "0.0625",
             "--workspace", str(tmp_path / "ws"), "--out", str(out), "--no-progress",
             "--readme", str(readme), "--threads", "1"]  # fmt: skip
-    threads = torch.get_num_threads()
+    threads, train_cell = torch.get_num_threads(), convergence.run_cell
     assert convergence.main(args) == 0
     assert torch.get_num_threads() == threads  # --threads holds for the study only
     summary = json.loads((out / "dnerf_mutant.json").read_text())
@@ -59,6 +59,14 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     assert convergence.main(more) == 0
     assert "| static | 0.0625 (50x50) | 20 |" in readme.read_text()
     assert "Not run yet: static at 0.0625x, N = 30." in readme.read_text()
+    # --num-points: the scene's random initial cloud of that size, in cells and outputs of their own
+    fewer = [*args[:5], "10", *args[6:11], str(tmp_path / "out_p"), *args[12:], "--num-points", "300"]
+    monkeypatch.setattr(convergence, "run_cell", train_cell)
+    assert convergence.main(fewer) == 0
+    (cell,) = json.loads((tmp_path / "out_p" / "dnerf_mutant-p300.json").read_text())["cells"]
+    assert cell["num_points"] == 300 and cell["num_gaussians"] == 300  # no densification in 10 steps
+    assert (tmp_path / "ws" / "dnerf_mutant" / "static-r0.0625-n10-p300.json").is_file()
+    assert "initial points 300" in readme.read_text()
     with pytest.raises(SystemExit) as err:
         convergence.main([*more[:9], str(tmp_path / "empty"), *more[10:]])
     assert err.value.code == 2
@@ -71,7 +79,7 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     cell.write_text(cell.read_text().replace(version, "0ther1ibrary0000"))
     recomputed = []
 
-    def fake_training(expert, scene, resolution, iterations, progress):
+    def fake_training(expert, scene, resolution, iterations, progress, num_points):
         recomputed.append(iterations)
         return {**cells[1], "psnr": 11.0}
 
@@ -92,6 +100,12 @@ def test_provenance_names_the_machine_of_every_cell():
     assert words.startswith("cells run on AMD EPYC, 2 logical CPUs; Intel Xeon, 2 logical CPUs; ")
     assert "library code version v1 (git aaaaaaaaaa, bbbbbbbbbb), 1 torch thread(s) per cell" in words
     assert "cells run on unrecorded;" in convergence.provenance([{"code_version": "v1"}])
+
+
+def test_cli_rejects_a_point_count_below_one(capsys):
+    with pytest.raises(SystemExit) as err:
+        convergence.main(["--num-points", "0", "--no-run"])
+    assert err.value.code == 2 and "--num-points must be >= 1, got 0" in capsys.readouterr().err
 
 
 def test_cli_rejects_a_thread_count_below_one(capsys):
