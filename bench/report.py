@@ -341,8 +341,19 @@ def convergence_markdown(base: Path) -> list[str]:
         return []
     lines = ["## Convergence beyond the quick preset", "", CONVERGENCE_NOTE, ""]
     for figure, table in studies:
+        lines += [f"### {_study_title(table.with_suffix('.json'), figure.stem)}", ""]
         lines += [f"![{figure.stem}](convergence/{figure.name})", "", table.read_text().strip(), ""]
     return lines
+
+
+def _study_title(summary: Path, stem: str) -> str:
+    """``scene`` of a study's JSON and, where its cells set one, their initial point count."""
+    if not summary.is_file():
+        return stem
+    data = json.loads(summary.read_text())
+    points = sorted({c["num_points"] for c in data.get("cells", []) if c.get("num_points") is not None})
+    init = f" ({', '.join(map(str, points))} random initial points)" if points else ""
+    return f"{data.get('scene', stem)}{init}"
 
 
 def presets_markdown(comparisons: list[Any]) -> list[str]:

@@ -48,6 +48,7 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     assert f"cells run on {cells[0]['machine']};" in written
     section = "\n".join(convergence_markdown(tmp_path / "reports"))
     assert "![dnerf_mutant](convergence/dnerf_mutant.png)" in section and "| static | 0.0625" in section
+    assert "### dnerf:mutant\n" in section
 
     def no_training(*args, **kwargs):
         raise AssertionError("a cached cell was recomputed")
@@ -67,6 +68,11 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     assert cell["num_points"] == 300 and cell["num_gaussians"] == 300  # no densification in 10 steps
     assert (tmp_path / "ws" / "dnerf_mutant" / "static-r0.0625-n10-p300.json").is_file()
     assert "initial points 300" in readme.read_text()
+    (tmp_path / "convergence").mkdir()
+    for f in (tmp_path / "out_p").iterdir():
+        (tmp_path / "convergence" / f.name).write_bytes(f.read_bytes())
+    report = "\n".join(convergence_markdown(tmp_path))
+    assert "### dnerf:mutant (300 random initial points)" in report
     with pytest.raises(SystemExit) as err:
         convergence.main([*more[:9], str(tmp_path / "empty"), *more[10:]])
     assert err.value.code == 2
