@@ -214,7 +214,7 @@ def plot(records: list[dict], paper: dict[str, float], title: str, path: Path) -
             for ax in axes:
                 ax.axhline(value, color=colors[expert], lw=0.8, ls=":")
     axes[0].set_xlabel("training iterations (quick schedules scaled)")
-    axes[1].set_xlabel("wall minutes on this machine (train + load + evaluation)")
+    axes[1].set_xlabel("wall minutes of the cell (train + load + evaluation)")
     for ax in axes:
         ax.set_ylabel("test PSNR (dB)")
         ax.grid(alpha=0.3)
@@ -256,11 +256,8 @@ def provenance(records: list[dict]) -> str:
         return sep.join(v[:10] if key == "git" else v for v in values)
 
     points = {r.get("num_points") for r in records}
-    init = (
-        ""
-        if points == {None}
-        else f", initial points {distinct('num_points')} ('unrecorded': the loader's default)"
-    )
+    default = " ('unrecorded': the loader's default)" if None in points else ""
+    init = "" if points == {None} else f", initial points {distinct('num_points')}{default}"
     return (
         f"cells run on {distinct('machine', '; ')}; library code version {distinct('code_version')} "
         f"(git {distinct('git')}), {distinct('threads')} torch thread(s) per cell{init}"
@@ -318,7 +315,8 @@ def main(argv: list[str] | None = None) -> int:
         p.exit(2, "bench.convergence: no cell of this library computed yet (run without --no-run)\n")
     paper = paper_values(args.scene, experts)
     stem = args.scene.replace(":", "_") + ("" if args.num_points is None else f"-p{args.num_points}")
-    plot(records, paper, f"Convergence on {args.scene}", args.out / f"{stem}.png")
+    points = "" if args.num_points is None else f", {args.num_points} random initial points"
+    plot(records, paper, f"Convergence on {args.scene}{points}", args.out / f"{stem}.png")
     table = markdown(records, paper)
     (args.out / f"{stem}.md").write_text(table + "\n")
     from moegs.io import write_json
