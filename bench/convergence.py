@@ -11,7 +11,7 @@ figure. Cells are cached as JSON under ``--workspace`` (atomic writes): an inter
 and a finished cell is never recomputed unless ``--force``, or unless the library code the cell runs
 changed (``cell_code_version``, the bench's rule for its own cells): a study's table is always of one
 library version, which its README footer names. The figure (PSNR against iterations and against
-minutes on this machine) and a markdown table go to ``--out``.
+each cell's wall minutes) and a markdown table go to ``--out``.
 
 ``--num-points N`` loads a scene that stores no initial cloud with N random points instead of its
 loader's default (the originals' 100k on D-NeRF; the bench presets load 5k): those cells and outputs

@@ -73,6 +73,7 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
         (tmp_path / "convergence" / f.name).write_bytes(f.read_bytes())
     report = "\n".join(convergence_markdown(tmp_path))
     assert "### dnerf:mutant (300 random initial points)" in report
+    monkeypatch.setattr(convergence, "run_cell", no_training)  # what follows reuses cached cells only
     with pytest.raises(SystemExit) as err:
         convergence.main([*more[:9], str(tmp_path / "empty"), *more[10:]])
     assert err.value.code == 2
