@@ -14,8 +14,9 @@ library version, which its README footer names. The figure (PSNR against iterati
 each cell's wall minutes) and a markdown table go to ``--out``.
 
 ``--num-points N`` loads a scene that stores no initial cloud with N random points instead of its
-loader's default (the originals' 100k on D-NeRF; the bench presets load 5k): those cells and outputs
-carry a ``-pN`` suffix.
+loader's default (the originals' 100k on D-NeRF; the bench presets load 5k), and ``--seed S`` trains
+with another seed than the recipe's 0 (``Variant``): those cells and outputs carry a ``-pN`` / ``-sS``
+suffix.
 
 The scaling rule is ``bench.schedules``'s (the ``standard`` bench preset trains with the same).
 """
@@ -26,9 +27,32 @@ import argparse
 import math
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from bench.schedules import QUICK_ITERATIONS, scaled_overrides
+
+
+@dataclass(frozen=True)
+class Variant:
+    """What a study may change besides expert, resolution and length: the initial cloud of a scene that
+    stores none (``num_points``; None: the loader's default) and the training seed (the recipe's is 0)."""
+
+    num_points: int | None = None
+    seed: int = 0
+
+    @property
+    def suffix(self) -> str:
+        """``-pN`` and ``-sS`` where they differ from the defaults: cell files and outputs carry it."""
+        return ("" if self.num_points is None else f"-p{self.num_points}") + (
+            f"-s{self.seed}" if self.seed else ""
+        )
+
+    @property
+    def words(self) -> str:
+        """``, N random initial points, seed S`` where they differ from the defaults."""
+        points = "" if self.num_points is None else f", {self.num_points} random initial points"
+        return points + (f", seed {self.seed}" if self.seed else "")
 
 
 def cell_code_version(expert: str, scene_name: str) -> str:
@@ -45,10 +69,9 @@ def run_cell(
     resolution: float,
     iterations: int,
     progress: bool,
-    num_points: int | None = None,
+    variant: Variant = Variant(),
 ) -> dict:
-    """Train and score one cell (see the module docstring); a JSON-ready record. ``num_points``: initial
-    points of a scene without a stored cloud (None: the loader's default, as the originals load it)."""
+    """Train and score one cell (see the module docstring) of ``variant``; a JSON-ready record."""
     import torch
 
     from bench.cells._eval import psnr_upsampled
@@ -62,9 +85,11 @@ def run_cell(
     overrides = scaled_overrides(expert, scene_name, iterations)
     overrides.update(
         {"train.resolution_scale": resolution, "train.max_eval_views": None, "train.eval_every": 0}
+        | ({"train.seed": variant.seed} if variant.seed else {})
     )
     recipe = config_for(expert, scene_name, "quick", overrides=overrides)
-    load = recipe.load_kwargs | ({"num_points": num_points} if num_points is not None else {})
+    points = variant.num_points
+    load = recipe.load_kwargs | ({"num_points": points} if points is not None else {})
     scene = load_scene(scene_name, **load)
     start = time.perf_counter()
     model, result = train_recipe(recipe, scene, progress=progress)
@@ -79,7 +104,8 @@ def run_cell(
         "train_minutes": result["train_seconds"] / 60.0,
         "minutes": seconds / 60.0,
         "num_gaussians": result["num_gaussians"],
-        "num_points": num_points,
+        "num_points": points,
+        "seed": variant.seed,
         "test_views": test["num_views"],
         "psnr": test["psnr"],
         "psnr_dynamic": test.get("psnr_dynamic"),
@@ -108,10 +134,11 @@ def cell_path(
     scene: str,
     resolution: float,
     iterations: int,
-    num_points: int | None = None,
+    variant: Variant = Variant(),
 ) -> Path:
-    points = "" if num_points is None else f"-p{num_points}"
-    return workspace / scene.replace(":", "_") / f"{expert}-r{resolution:g}-n{iterations}{points}.json"
+    return (
+        workspace / scene.replace(":", "_") / f"{expert}-r{resolution:g}-n{iterations}{variant.suffix}.json"
+    )
 
 
 def run_study(
@@ -124,7 +151,7 @@ def run_study(
     force: bool = False,
     progress: bool = True,
     run: bool = True,
-    num_points: int | None = None,
+    variant: Variant = Variant(),
 ) -> tuple[list[dict], list[str]]:
     """Every (expert, resolution, N) cell not beyond ``limits[resolution]``, cached under ``workspace``;
     a cached cell of other library code is recomputed. With ``run=False`` nothing is trained: the
@@ -138,7 +165,7 @@ def run_study(
             for n in iterations:
                 if n > (limits or {}).get(resolution, math.inf):
                     continue
-                path = cell_path(workspace, expert, scene, resolution, n, num_points)
+                path = cell_path(workspace, expert, scene, resolution, n, variant)
                 why = "computing"
                 if path.is_file() and not force:
                     cached = read_json(path, "convergence cell")
@@ -150,7 +177,7 @@ def run_study(
                     missing.append(f"{expert} at {resolution:g}x, N = {n}")
                     continue
                 print(f"[convergence] {why}: {expert} on {scene} at {resolution:g}x, N = {n}", flush=True)
-                records.append(run_cell(expert, scene, resolution, n, progress, num_points))
+                records.append(run_cell(expert, scene, resolution, n, progress, variant))
                 write_json(path, records[-1])
     return records, missing
 
@@ -258,9 +285,11 @@ def provenance(records: list[dict]) -> str:
     points = {r.get("num_points") for r in records}
     default = " ('unrecorded': the loader's default)" if None in points else ""
     init = "" if points == {None} else f", initial points {distinct('num_points')}{default}"
+    seeds = {r.get("seed") or 0 for r in records}
+    seed = "" if seeds == {0} else f", seed {', '.join(map(str, sorted(seeds)))}"
     return (
         f"cells run on {distinct('machine', '; ')}; library code version {distinct('code_version')} "
-        f"(git {distinct('git')}), {distinct('threads')} torch thread(s) per cell{init}"
+        f"(git {distinct('git')}), {distinct('threads')} torch thread(s) per cell{init}{seed}"
     )
 
 
@@ -284,6 +313,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--num-points", type=int, help="initial points where the scene stores none (default: the loader's)"
     )
+    p.add_argument("--seed", type=int, default=0, help="training seed (default: the recipe's, 0)")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--no-run", action="store_true", help="train nothing: draw the cells already computed")
     args = p.parse_args(argv)
@@ -298,8 +328,11 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--threads must be >= 1, got {args.threads}")
         if args.num_points is not None and args.num_points < 1:
             raise ValueError(f"--num-points must be >= 1, got {args.num_points}")
+        if args.seed < 0:
+            raise ValueError(f"--seed must be >= 0, got {args.seed}")
     except ValueError as err:
         p.exit(2, f"bench.convergence: {err}\n")
+    variant = Variant(args.num_points, args.seed)
     import torch
 
     threads = torch.get_num_threads()
@@ -307,16 +340,15 @@ def main(argv: list[str] | None = None) -> int:
     try:
         records, missing = run_study(
             args.scene, experts, iterations, resolutions, args.workspace, limits, args.force,
-            not args.no_progress, run=not args.no_run, num_points=args.num_points,
+            not args.no_progress, run=not args.no_run, variant=variant,
         )  # fmt: skip
     finally:
         torch.set_num_threads(threads)
     if not records:
         p.exit(2, "bench.convergence: no cell of this library computed yet (run without --no-run)\n")
     paper = paper_values(args.scene, experts)
-    stem = args.scene.replace(":", "_") + ("" if args.num_points is None else f"-p{args.num_points}")
-    points = "" if args.num_points is None else f", {args.num_points} random initial points"
-    plot(records, paper, f"Convergence on {args.scene}{points}", args.out / f"{stem}.png")
+    stem = args.scene.replace(":", "_") + variant.suffix
+    plot(records, paper, f"Convergence on {args.scene}{variant.words}", args.out / f"{stem}.png")
     table = markdown(records, paper)
     (args.out / f"{stem}.md").write_text(table + "\n")
     from moegs.io import write_json

@@ -347,13 +347,16 @@ def convergence_markdown(base: Path) -> list[str]:
 
 
 def _study_title(summary: Path, stem: str) -> str:
-    """``scene`` of a study's JSON and, where its cells set one, their initial point count."""
+    """``scene`` of a study's JSON and, where its cells set them, their initial point count and seed."""
     if not summary.is_file():
         return stem
     data = json.loads(summary.read_text())
-    points = sorted({c["num_points"] for c in data.get("cells", []) if c.get("num_points") is not None})
-    init = f" ({', '.join(map(str, points))} random initial points)" if points else ""
-    return f"{data.get('scene', stem)}{init}"
+    cells = data.get("cells", [])
+    points = sorted({c["num_points"] for c in cells if c.get("num_points") is not None})
+    seeds = sorted({c["seed"] for c in cells if c.get("seed")})
+    notes = [f"{', '.join(map(str, points))} random initial points"] if points else []
+    notes += [f"seed {', '.join(map(str, seeds))}"] if seeds else []
+    return f"{data.get('scene', stem)}" + (f" ({'; '.join(notes)})" if notes else "")
 
 
 def presets_markdown(comparisons: list[Any]) -> list[str]:

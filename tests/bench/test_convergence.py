@@ -61,18 +61,30 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     assert "| static | 0.0625 (50x50) | 20 |" in readme.read_text()
     assert "Not run yet: static at 0.0625x, N = 30." in readme.read_text()
     # --num-points: the scene's random initial cloud of that size, in cells and outputs of their own
-    fewer = [*args[:5], "10", *args[6:11], str(tmp_path / "out_p"), *args[12:], "--num-points", "300"]
+    fewer = [
+        *args[:5],
+        "10",
+        *args[6:11],
+        str(tmp_path / "out_p"),
+        *args[12:],
+        "--num-points",
+        "300",
+        "--seed",
+        "1",
+    ]
     monkeypatch.setattr(convergence, "run_cell", train_cell)
     assert convergence.main(fewer) == 0
-    (cell,) = json.loads((tmp_path / "out_p" / "dnerf_mutant-p300.json").read_text())["cells"]
+    (cell,) = json.loads((tmp_path / "out_p" / "dnerf_mutant-p300-s1.json").read_text())["cells"]
     assert cell["num_points"] == 300 and cell["num_gaussians"] == 300  # no densification in 10 steps
-    assert (tmp_path / "ws" / "dnerf_mutant" / "static-r0.0625-n10-p300.json").is_file()
-    assert "initial points 300" in readme.read_text()
+    assert cell["seed"] == 1 and cell["recipe"]["overrides"]["train.seed"] == 1
+    assert cell["psnr"] != cells[0]["psnr"]  # another cloud and seed: another run
+    assert (tmp_path / "ws" / "dnerf_mutant" / "static-r0.0625-n10-p300-s1.json").is_file()
+    assert "initial points 300, seed 1" in readme.read_text()
     (tmp_path / "convergence").mkdir()
     for f in (tmp_path / "out_p").iterdir():
         (tmp_path / "convergence" / f.name).write_bytes(f.read_bytes())
     report = "\n".join(convergence_markdown(tmp_path))
-    assert "### dnerf:mutant (300 random initial points)" in report
+    assert "### dnerf:mutant (300 random initial points; seed 1)" in report
     monkeypatch.setattr(convergence, "run_cell", no_training)  # what follows reuses cached cells only
     with pytest.raises(SystemExit) as err:
         convergence.main([*more[:9], str(tmp_path / "empty"), *more[10:]])
@@ -86,7 +98,7 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     cell.write_text(cell.read_text().replace(version, "0ther1ibrary0000"))
     recomputed = []
 
-    def fake_training(expert, scene, resolution, iterations, progress, num_points):
+    def fake_training(expert, scene, resolution, iterations, progress, variant):
         recomputed.append(iterations)
         return {**cells[1], "psnr": 11.0}
 
@@ -109,10 +121,17 @@ def test_provenance_names_the_machine_of_every_cell():
     assert "cells run on unrecorded;" in convergence.provenance([{"code_version": "v1"}])
 
 
-def test_cli_rejects_a_point_count_below_one(capsys):
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--num-points", "0"], "--num-points must be >= 1, got 0"),
+        (["--seed", "-1"], "--seed must be >= 0, got -1"),
+    ],
+)
+def test_cli_rejects_a_bad_variant(capsys, argv, message):
     with pytest.raises(SystemExit) as err:
-        convergence.main(["--num-points", "0", "--no-run"])
-    assert err.value.code == 2 and "--num-points must be >= 1, got 0" in capsys.readouterr().err
+        convergence.main([*argv, "--no-run"])
+    assert err.value.code == 2 and message in capsys.readouterr().err
 
 
 def test_cli_rejects_a_thread_count_below_one(capsys):
