@@ -347,16 +347,14 @@ def convergence_markdown(base: Path) -> list[str]:
 
 
 def _study_title(summary: Path, stem: str) -> str:
-    """``scene`` of a study's JSON and, where its cells set them, their initial point count and seed."""
+    """``scene`` of a study's JSON and the variant its cells share (initial points, seed)."""
+    from bench.convergence import Variant
+
     if not summary.is_file():
         return stem
     data = json.loads(summary.read_text())
-    cells = data.get("cells", [])
-    points = sorted({c["num_points"] for c in cells if c.get("num_points") is not None})
-    seeds = sorted({c["seed"] for c in cells if c.get("seed")})
-    notes = [f"{', '.join(map(str, points))} random initial points"] if points else []
-    notes += [f"seed {', '.join(map(str, seeds))}"] if seeds else []
-    return f"{data.get('scene', stem)}" + (f" ({'; '.join(notes)})" if notes else "")
+    cells = data.get("cells") or [{}]
+    return f"{data.get('scene', stem)}{Variant.of(cells[0]).words}"
 
 
 def presets_markdown(comparisons: list[Any]) -> list[str]:

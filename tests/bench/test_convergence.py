@@ -79,12 +79,12 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     assert cell["seed"] == 1 and cell["recipe"]["overrides"]["train.seed"] == 1
     assert cell["psnr"] != cells[0]["psnr"]  # another cloud and seed: another run
     assert (tmp_path / "ws" / "dnerf_mutant" / "static-r0.0625-n10-p300-s1.json").is_file()
-    assert "initial points 300, seed 1" in readme.read_text()
+    assert "1 torch thread(s) per cell, 300 random initial points, seed 1;" in readme.read_text()
     (tmp_path / "convergence").mkdir()
     for f in (tmp_path / "out_p").iterdir():
         (tmp_path / "convergence" / f.name).write_bytes(f.read_bytes())
     report = "\n".join(convergence_markdown(tmp_path))
-    assert "### dnerf:mutant (300 random initial points; seed 1)" in report
+    assert "### dnerf:mutant, 300 random initial points, seed 1\n" in report
     monkeypatch.setattr(convergence, "run_cell", no_training)  # what follows reuses cached cells only
     with pytest.raises(SystemExit) as err:
         convergence.main([*more[:9], str(tmp_path / "empty"), *more[10:]])
@@ -119,6 +119,10 @@ def test_provenance_names_the_machine_of_every_cell():
     assert words.startswith("cells run on AMD EPYC, 2 logical CPUs; Intel Xeon, 2 logical CPUs; ")
     assert "library code version v1 (git aaaaaaaaaa, bbbbbbbbbb), 1 torch thread(s) per cell" in words
     assert "cells run on unrecorded;" in convergence.provenance([{"code_version": "v1"}])
+    variant = convergence.Variant.of({"num_points": 5000, "seed": 1})
+    assert variant == convergence.Variant(5000, 1) and variant.suffix == "-p5000-s1"
+    assert convergence.provenance(cells, variant).endswith("per cell, 5000 random initial points, seed 1")
+    assert convergence.Variant.of({}) == convergence.Variant() and convergence.Variant().suffix == ""
 
 
 @pytest.mark.parametrize(
