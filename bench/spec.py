@@ -298,3 +298,33 @@ def beats_on_average(claim_id: str, row: str, others: Sequence[str], source: str
     """``row`` beats each of ``others`` on the average (PSNR)."""
     text = f"{row} has a better average than {_listing(others)}"
     return Claim(claim_id, text, "better", {"a": row, "b": list(others)}, source)
+
+
+# ------------------------------------------------------------------ spec constructors (the common designs)
+def moe_pair_spec(
+    spec_id: str,
+    title: str,
+    dataset: str,
+    experts: tuple[str, str],
+    sources: tuple[str, str],
+    *,
+    claims: Sequence[Claim] = (),
+    notes: str = "",
+) -> Spec:
+    """Tables XIV, XVI and XVII: MoE-GS (N=2) over two experts (paper names) against each of them, with
+    the paper's claims that it beats both on every scene (cited to ``sources[0]``) and on average
+    (``sources[1]``), plus any table-specific ``claims``; the claims are about motion."""
+    pair = "MoE-GS (N=2)"
+    return Spec(
+        id=spec_id,
+        title=title,
+        dataset=dataset,
+        rows=(*(expert(e) for e in experts), moe(pair, tuple(EXPERTS[e] for e in experts))),
+        claims=(
+            beats_every_scene("n2-every-scene", pair, list(experts), sources[0]),
+            beats_on_average("n2-best-average", pair, list(experts), sources[1]),
+            *claims,
+        ),
+        motion=True,
+        notes=notes,
+    )

@@ -1,17 +1,13 @@
 """Table XIV (tab:monocular): monocular HyperNeRF, 4DGaussians, E-D3DGS and MoE-GS N=2."""
 
-from bench.spec import Spec, beats_every_scene, beats_on_average, expert, moe
+from bench.spec import moe_pair_spec
 
-SPEC = Spec(
-    id="tab14",
-    title="Monocular HyperNeRF (PSNR)",
-    dataset="hypernerf",
-    rows=(expert("4DGaussians"), expert("E-D3DGS"), moe("MoE-GS (N=2)", ("fourdgs", "ed3dgs"))),
-    claims=(
-        beats_every_scene("n2-every-scene", "MoE-GS (N=2)", ["4DGaussians", "E-D3DGS"], "Table XIV"),
-        beats_on_average("n2-best-average", "MoE-GS (N=2)", ["4DGaussians", "E-D3DGS"], "Appendix"),
-    ),
-    motion=True,
+SPEC = moe_pair_spec(
+    "tab14",
+    "Monocular HyperNeRF (PSNR)",
+    "hypernerf",
+    ("4DGaussians", "E-D3DGS"),
+    ("Table XIV", "Appendix"),
     notes="The paper does not print the two experts of MoE-GS (N=2); {4DGaussians, E-D3DGS} (the listed "
     "baselines) is assumed.",
 )
