@@ -9,7 +9,7 @@ from __future__ import annotations
 
 LIBRARY = "_cpu"
 """File stem of the library, built next to ``moegs/kernels/__init__.py``."""
-SOURCES = ("raster.c", "hashgrid.c")
+SOURCES = ("raster.c", "project.c", "hashgrid.c")
 """C files of the library, in ``moegs/kernels/``."""
 HEADERS = ("moegs_api.h",)
 """Header they share (export attribute, OpenMP), in ``moegs/kernels/``."""
