@@ -106,6 +106,7 @@ def _patched(timers: ExclusiveTimers, run: Any) -> Iterator[None]:
         (pipeline, "covariance_3d", "projection"),
         (pipeline, "project", "projection"),
         (_cpu, "project", "projection"),
+        (_cpu, "covariance_3d", "projection"),
         (pipeline, "camera_points", "projection"),
         (pipeline, "_composite", "raster fwd"),
         (_cpu, "composite", "raster fwd"),

@@ -56,6 +56,10 @@ def _declare(lib: ctypes.CDLL) -> None:
     lib.moegs_project_forward.argtypes = [i64, i32] + [p] * 4 + [i32, i32, f32, f32, i32] + [p] * 5
     lib.moegs_project_backward.restype = ctypes.c_int
     lib.moegs_project_backward.argtypes = [i64, i32] + [p] * 4 + [f32, f32, i32] + [p] * 7
+    lib.moegs_covariance_forward.restype = ctypes.c_int
+    lib.moegs_covariance_forward.argtypes = [i64, i32] + [p] * 3
+    lib.moegs_covariance_backward.restype = ctypes.c_int
+    lib.moegs_covariance_backward.argtypes = [i64, i32] + [p] * 5
     for name in ("moegs_hashgrid_forward", "moegs_hashgrid_backward"):
         fn = getattr(lib, name)
         fn.restype = ctypes.c_int

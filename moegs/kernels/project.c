@@ -232,3 +232,83 @@ MOEGS_API int moegs_project_backward(int64_t n, int32_t nthreads, const float *m
     }
     return 0;
 }
+
+/*
+ * World-space covariances R S S^T R^T from quaternions (w, x, y, z, used as given: not normalised) and
+ * scales, as moegs/render/projection.py's covariance_3d computes them in float32: R from the
+ * quaternion's products, M = R diag(s), covariance entry (i, j) = ((M_i0 M_j0 + M_i1 M_j1) + M_i2 M_j2).
+ */
+static void rotation(const float *q, float *R) {
+    const float w = q[0], x = q[1], y = q[2], z = q[3];
+    R[0] = 1.0f - 2.0f * (y * y + z * z);
+    R[1] = 2.0f * (x * y - w * z);
+    R[2] = 2.0f * (x * z + w * y);
+    R[3] = 2.0f * (x * y + w * z);
+    R[4] = 1.0f - 2.0f * (x * x + z * z);
+    R[5] = 2.0f * (y * z - w * x);
+    R[6] = 2.0f * (x * z - w * y);
+    R[7] = 2.0f * (y * z + w * x);
+    R[8] = 1.0f - 2.0f * (x * x + y * y);
+}
+
+/* quats [n,4], scales [n,3] float32 -> covars [n,3,3]. Returns 0. */
+MOEGS_API int moegs_covariance_forward(int64_t n, int32_t nthreads, const float *quats, const float *scales,
+                                       float *covars) {
+    if (nthreads < 1) nthreads = 1;
+#pragma omp parallel for num_threads(nthreads) schedule(static) if (n > PAR_MIN_PROJECT)
+    for (int64_t i = 0; i < n; ++i) {
+        float R[9], M[9];
+        rotation(quats + 4 * i, R);
+        for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c) M[3 * r + c] = R[3 * r + c] * scales[3 * i + c];
+        float *S = covars + 9 * i;
+        for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c)
+                S[3 * r + c] = (M[3 * r] * M[3 * c] + M[3 * r + 1] * M[3 * c + 1]) + M[3 * r + 2] * M[3 * c + 2];
+    }
+    return 0;
+}
+
+/* The gradient of covars [n,3,3] (all nine entries) -> those of quats [n,4] and scales [n,3], in double.
+ * With G the gradient of S = M M^T: dM = (G + G^T) M; M = R diag(s). Returns 0. */
+MOEGS_API int moegs_covariance_backward(int64_t n, int32_t nthreads, const float *quats, const float *scales,
+                                        const float *g_covars, float *g_quats, float *g_scales) {
+    if (nthreads < 1) nthreads = 1;
+#pragma omp parallel for num_threads(nthreads) schedule(static) if (n > PAR_MIN_PROJECT)
+    for (int64_t i = 0; i < n; ++i) {
+        float R[9];
+        const float *q = quats + 4 * i, *s = scales + 3 * i, *G = g_covars + 9 * i;
+        rotation(q, R);
+        double M[9], gM[9], gR[9];
+        for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c) M[3 * r + c] = (double)R[3 * r + c] * s[c];
+        for (int r = 0; r < 3; ++r)
+            for (int c = 0; c < 3; ++c) {
+                double sum = 0.0;
+                for (int k = 0; k < 3; ++k) sum += ((double)G[3 * r + k] + G[3 * k + r]) * M[3 * k + c];
+                gM[3 * r + c] = sum;
+            }
+        for (int c = 0; c < 3; ++c) {
+            double gs = 0.0;
+            for (int r = 0; r < 3; ++r) {
+                gR[3 * r + c] = gM[3 * r + c] * s[c];
+                gs += gM[3 * r + c] * R[3 * r + c];
+            }
+            g_scales[3 * i + c] = (float)gs;
+        }
+        const double w = q[0], x = q[1], y = q[2], z = q[3];
+        /* d R / d (w, x, y, z), entry by entry (rotation above) */
+        const double gw = 2.0 * (-z * gR[1] + y * gR[2] + z * gR[3] - x * gR[5] - y * gR[6] + x * gR[7]);
+        const double gx = 2.0 * (y * gR[1] + z * gR[2] + y * gR[3] - 2.0 * x * gR[4] - w * gR[5] + z * gR[6] +
+                                 w * gR[7] - 2.0 * x * gR[8]);
+        const double gy = 2.0 * (-2.0 * y * gR[0] + x * gR[1] + w * gR[2] + x * gR[3] + z * gR[5] - w * gR[6] +
+                                 z * gR[7] - 2.0 * y * gR[8]);
+        const double gz = 2.0 * (-2.0 * z * gR[0] - w * gR[1] + x * gR[2] + w * gR[3] - 2.0 * z * gR[4] +
+                                 y * gR[5] + x * gR[6] + y * gR[7]);
+        g_quats[4 * i] = (float)gw;
+        g_quats[4 * i + 1] = (float)gx;
+        g_quats[4 * i + 2] = (float)gy;
+        g_quats[4 * i + 3] = (float)gz;
+    }
+    return 0;
+}

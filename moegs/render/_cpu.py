@@ -3,16 +3,16 @@ ctypes), forward and backward.
 
 ``composite`` has exactly the signature, return values and maths of
 :func:`moegs.render._torch._composite` (see that module's docstring for the contract); it is the
-fast CPU path, ``_torch._composite`` is the oracle it is tested against. ``project`` is
-:func:`moegs.render.projection.project` for float32 inputs: its forward equals that reference to the
-bit (radii included), its backward is the chain rule of the same graph. Every buffer is a torch
-tensor allocated here and passed to C as a raw pointer. If the compiled library is missing or stale,
-``is_available()`` is False and ``load_error()`` says why (:mod:`moegs.kernels`); callers fall back to
-the references.
+fast CPU path, ``_torch._composite`` is the oracle it is tested against. ``covariance_3d`` and
+``project`` are those of :mod:`moegs.render.projection` for float32 inputs: their forwards equal the
+references to the bit (radii included), their backwards are the chain rule of the same graphs. Every
+buffer is a torch tensor allocated here and passed to C as a raw pointer. If the compiled library is
+missing or stale, ``is_available()`` is False and ``load_error()`` says why (:mod:`moegs.kernels`);
+callers fall back to the references.
 
 Results are deterministic and bit-identical for any thread count (per-Gaussian sums go through
 per-(tile, Gaussian) slots reduced in a fixed order). ``composite``'s outputs are float32 whatever the
-input dtype; ``project`` hands other dtypes to the reference.
+input dtype; ``covariance_3d`` and ``project`` hand other dtypes to the references.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from moegs.kernels import is_available, library, library_path, load_error
 from moegs.render import projection as _reference
 from moegs.render.projection import BLUR_3DGS, Projection
 
-__all__ = ["composite", "project", "is_available", "load_error", "library_path", "TILE_SIZE"]
+__all__ = ["composite", "covariance_3d", "project", "is_available", "load_error", "library_path", "TILE_SIZE"]
 
 TILE_SIZE = 16  # pixels per tile side; only affects speed, never the result (8 and 16 measured within 5%)
 
@@ -273,3 +273,46 @@ def project(
         camera.width, camera.height, camera.near, camera.far, antialiased,
     )  # fmt: skip
     return Projection(means2d=means2d, conics=conics, opacities=opac_out, depths=depths, radii=radii)
+
+
+class _Covariance(torch.autograd.Function):
+    """Autograd wrapper; inputs are contiguous float32 CPU tensors."""
+
+    @staticmethod
+    def forward(ctx, quats, scales):
+        covars = torch.empty(quats.shape[0], 3, 3, dtype=torch.float32)
+        code = library().moegs_covariance_forward(
+            quats.shape[0], torch.get_num_threads(), _ptr(quats), _ptr(scales), _ptr(covars)
+        )
+        _check(code, "covariance forward")
+        ctx.save_for_backward(quats, scales)
+        return covars
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, g_covars):
+        quats, scales = ctx.saved_tensors
+        g_covars = g_covars.to(torch.float32).contiguous()
+        g_quats, g_scales = torch.empty_like(quats), torch.empty_like(scales)
+        code = library().moegs_covariance_backward(
+            quats.shape[0], torch.get_num_threads(), _ptr(quats), _ptr(scales), _ptr(g_covars),
+            _ptr(g_quats), _ptr(g_scales),
+        )  # fmt: skip
+        _check(code, "covariance backward")
+        need = ctx.needs_input_grad
+        return (g_quats if need[0] else None, g_scales if need[1] else None)
+
+
+def covariance_3d(quats: Tensor, scales: Tensor) -> Tensor:
+    """:func:`moegs.render.projection.covariance_3d` with the compiled kernel (float32 CPU tensors; other
+    dtypes, or a missing library, go to that reference): ``[N, 3, 3]`` from quats ``[N, 4]`` and scales
+    ``[N, 3]``, differentiable w.r.t. both."""
+    if library() is None or any(t.dtype != torch.float32 or t.device.type != "cpu" for t in (quats, scales)):
+        return _reference.covariance_3d(quats, scales)
+    n = quats.shape[0]
+    if quats.shape != (n, 4) or scales.shape != (n, 3):
+        raise ValueError(
+            f"covariance_3d: expected quats [N, 4] and scales [N, 3], got {tuple(quats.shape)} and "
+            f"{tuple(scales.shape)}"
+        )
+    return _Covariance.apply(quats.contiguous(), scales.contiguous())

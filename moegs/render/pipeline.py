@@ -231,9 +231,10 @@ def _render(
     eps2d = options.eps2d
     if eps2d is None:
         eps2d = DILATION_ANTIALIASED if options.antialiased else BLUR_3DGS
+    covariance = _cpu_kernel()[0].covariance_3d if backend == "cpu" else covariance_3d
     image, alpha, radii, means2d, contrib = _rasterizer(backend)(
         frame.means,
-        covariance_3d(frame.quats, frame.scales),
+        covariance(frame.quats, frame.scales),
         frame.opacities,
         torch.cat(parts, dim=1),
         camera,

@@ -94,9 +94,14 @@ def quat_to_rotmat(quats: Tensor) -> Tensor:
 
 
 def covariance_3d(quats: Tensor, scales: Tensor) -> Tensor:
-    """World-space covariances ``R S S^T R^T`` ``[N, 3, 3]`` from quats ``[N, 4]`` and scales ``[N, 3]``."""
-    m = quat_to_rotmat(quats) * scales[:, None, :]
-    return m @ m.transpose(-1, -2)
+    """World-space covariances ``R S S^T R^T`` ``[N, 3, 3]`` from quats ``[N, 4]`` and scales ``[N, 3]``.
+
+    With ``M = R diag(s)``, entry ``(i, j)`` is ``(M_i0 M_j0 + M_i1 M_j1) + M_i2 M_j2``, element-wise in
+    that order, which the compiled kernel (``moegs.render._cpu.covariance_3d``) reproduces to the bit."""
+    rows = (quat_to_rotmat(quats) * scales[:, None, :]).unbind(-2)
+    entry = [[rows[i][:, 0] * rows[j][:, 0] + rows[i][:, 1] * rows[j][:, 1] + rows[i][:, 2] * rows[j][:, 2]
+              for j in range(3)] for i in range(3)]  # fmt: skip
+    return torch.stack([torch.stack(row, dim=-1) for row in entry], dim=-2)
 
 
 def camera_points(means: Tensor, camera: Camera) -> Tensor:

@@ -1,5 +1,5 @@
-"""The compiled CPU projection (`moegs.render._cpu.project`) against its torch reference
-(`moegs.render.projection.project`): the forward equal to the bit (radii included), the gradients of
+"""The compiled CPU projection (`moegs.render._cpu.project`, `covariance_3d`) against its torch reference
+(`moegs.render.projection`): the forward equal to the bit (radii included), the gradients of
 means, covariances and opacities to rtol 2e-3 with an absolute floor of 1e-5 x the largest reference
 gradient (the kernel's chain rule runs in double, the reference's autograd in float32, which on a few
 ill-conditioned Gaussians is itself ~1e-3 off a float64 evaluation). Scenes with Gaussians behind the
@@ -87,9 +87,28 @@ def test_other_dtypes_go_to_the_reference():
     assert ours.means2d.dtype == torch.float64
     for name in OUTPUTS:
         assert torch.equal(getattr(ours, name), getattr(ref, name)), name
+    _, quats, scales, _, _ = projection_scene(n=50)
+    assert torch.equal(_cpu.covariance_3d(quats, scales), covariance_3d(quats, scales))  # float64
 
 
 def test_shapes_are_checked():
     (means, covars, opacities), cam = _inputs(n=10)
     with pytest.raises(ValueError, match=r"covars \[N, 3, 3\]"):
         _cpu.project(means, covars[:, :2], opacities, cam)
+    with pytest.raises(ValueError, match=r"scales \[N, 3\]"):
+        _cpu.covariance_3d(torch.ones(4, 4), torch.ones(4, 2))
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_covariance_bit_identical_and_gradients_match(seed):
+    _, quats, scales, _, _ = projection_scene(n=2000, seed=seed)  # quaternions not normalised
+    quats, scales = (t.float().requires_grad_(True) for t in (quats, scales))
+    ours, ref = _cpu.covariance_3d(quats, scales), covariance_3d(quats, scales)
+    assert torch.equal(ours, ref)
+    weights = torch.randn(ref.shape, generator=torch.Generator().manual_seed(seed))
+    got = torch.autograd.grad((ours * weights).sum(), (quats, scales))
+    want = torch.autograd.grad((ref * weights).sum(), (quats, scales))
+    for name, g, w in zip(("quats", "scales"), got, want, strict=True):
+        torch.testing.assert_close(
+            g, w, rtol=1e-4, atol=1e-5 * float(w.abs().max()), msg=lambda m, n=name: f"{n}: {m}"
+        )
