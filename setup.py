@@ -1,15 +1,15 @@
 """Build of the compiled CPU library (all other metadata lives in pyproject.toml).
 
-``moegs/kernels/*.c`` (compositing and hash encoding) are plain C + OpenMP with no Python or torch
-headers; the library is loaded with ctypes, never imported. It is declared as a setuptools
-``Extension`` only because that is the portable way to get a compiled shared library built and
-installed by ``pip install .`` and ``pip install -e .`` (build_ext handles the compiler, in-place
-editable builds and wheel tagging). ``raster.c`` exports a stub ``PyInit__cpu`` so linkers that
-expect one are satisfied.
+``moegs/kernels/*.c`` (compositing, projection and hash encoding) are C99 + OpenMP with GCC/clang
+vector extensions and no Python or torch headers; the library is loaded with ctypes, never imported.
+It is declared as a setuptools ``Extension`` only because that is the portable way to get a compiled
+shared library built and installed by ``pip install .`` and ``pip install -e .`` (build_ext handles
+the compiler, in-place editable builds and wheel tagging). ``raster.c`` exports a stub
+``PyInit__cpu`` so linkers that expect one are satisfied.
 
-The extension is ``optional``: without a C compiler the install still succeeds and moegs falls back
-to its pure-torch references (``moegs.kernels.is_available()`` is then False). No torch is needed
-at build time.
+The extension is ``optional``: without a C compiler that has the vector extensions (GCC or clang;
+not MSVC) the install still succeeds and moegs falls back to its pure-torch references
+(``moegs.kernels.is_available()`` is then False). No torch is needed at build time.
 """
 
 from __future__ import annotations
@@ -43,9 +43,7 @@ def _has_openmp(compiler) -> bool:
 
 class BuildExt(build_ext):
     def build_extensions(self):
-        if self.compiler.compiler_type == "msvc":
-            compile_args, link_args = ["/O2", "/openmp", "/fp:precise"], []
-        elif _has_openmp(self.compiler):
+        if _has_openmp(self.compiler):
             compile_args, link_args = _flags["COMPILE_ARGS"], _flags["LINK_ARGS"]
         else:
             print("moegs: C compiler has no OpenMP; building the CPU kernels single-threaded")

@@ -1,7 +1,10 @@
-"""Which library source a task depends on: a static import graph of ``moegs`` and ``bench``.
+"""Which source a task depends on: a static import graph of ``moegs`` and ``bench``.
 
-A task's code version hashes only the ``moegs`` modules its work can import, so editing one expert or
-one loader invalidates the cells that use it and no others. The modules are the transitive closure,
+A task's code version hashes the ``moegs`` modules its work can import and, of the harness, the modules
+that compute a cell's numbers (``HARNESS_HASHED``: the worker, the cell kinds and the schedule
+stretching), so editing one expert or one loader invalidates the cells that use it and no others. The
+other harness modules plan, store and report; what of them reaches a cell (the preset, the task's
+parameters and scene) is in the task's key by value. The modules are the transitive closure,
 over every ``import`` statement in a module (top level or inside functions), of:
 
 * ``bench.worker`` and the task kind's ``bench.cells`` module (the code that runs the task; a string
@@ -29,6 +32,8 @@ from pathlib import Path
 from bench.keys import CODE_VERSION_ENV, REPO, code_version, source_fingerprint
 
 PACKAGES = ("moegs", "bench")
+#: harness modules (and their submodules) whose code is hashed with the library's
+HARNESS_HASHED = ("bench.worker", "bench.cells", "bench.schedules")
 KERNEL_PACKAGE = "moegs.kernels"
 #: name experts and loaders by string for every task; a task depends on those it names (task_modules)
 EXPERT_REGISTRY = "moegs.experts"
@@ -118,10 +123,17 @@ def closure(entries: Iterable[str], root: Path = REPO) -> frozenset[str]:
     return frozenset(seen)
 
 
+def is_hashed(name: str) -> bool:
+    """Whether module ``name`` counts in a task's code version: a library module or a ``HARNESS_HASHED``
+    one."""
+    return name.split(".")[0] == "moegs" or any(name == h or name.startswith(h + ".") for h in HARNESS_HASHED)
+
+
 @cache
 def source_version(modules: frozenset[str], root: Path = REPO) -> str:
-    """Hash of the ``moegs`` modules among ``modules`` (and of the C kernel when it is one of them)."""
-    chosen = sorted(m for m in modules if m.split(".")[0] == "moegs")
+    """Hash of the hashed modules (``is_hashed``) among ``modules``, and of the C kernel when
+    ``moegs.kernels`` is one of them."""
+    chosen = sorted(m for m in modules if is_hashed(m))
     h = hashlib.sha256()
     for name in chosen:
         path = module_file(name, root)

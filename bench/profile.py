@@ -105,6 +105,8 @@ def _patched(timers: ExclusiveTimers, run: Any) -> Iterator[None]:
         (pipeline, "frame_colors", "projection"),
         (pipeline, "covariance_3d", "projection"),
         (pipeline, "project", "projection"),
+        (_cpu, "project", "projection"),
+        (_cpu, "covariance_3d", "projection"),
         (pipeline, "camera_points", "projection"),
         (pipeline, "_composite", "raster fwd"),
         (_cpu, "composite", "raster fwd"),

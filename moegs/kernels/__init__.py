@@ -1,11 +1,11 @@
-"""The compiled CPU library (C + OpenMP, loaded with ctypes): compositing and hash encoding.
+"""The compiled CPU library (C + OpenMP, loaded with ctypes): compositing, projection and hash encoding.
 
 One shared library, ``_cpu<EXT_SUFFIX>`` next to this file, built from ``raster.c`` (front-to-back
-compositing, used by :mod:`moegs.render._cpu`) and ``hashgrid.c`` (multiresolution hash encoding, used
-by :mod:`moegs.fields.hashgrid`) by the package build (``setup.py``) or, for people editing the C
-files, by ``python -m moegs.kernels build``. The C code has no torch or Python headers: callers
-allocate every buffer as a torch tensor and pass raw pointers. Each kernel has a pure-torch reference
-beside it that it is tested against.
+compositing) and ``project.c`` (EWA projection), both used by :mod:`moegs.render._cpu`, and
+``hashgrid.c`` (multiresolution hash encoding, used by :mod:`moegs.fields.hashgrid`) by the package
+build (``setup.py``) or, for people editing the C files, by ``python -m moegs.kernels build``. The C
+code has no torch or Python headers: callers allocate every buffer as a torch tensor and pass raw
+pointers. Each kernel has a pure-torch reference beside it that it is tested against.
 
 If the library is missing or stale, :func:`library` is None, :func:`load_error` says why, and callers
 use their torch references. Set ``MOEGS_DISABLE_CPU_KERNEL=1`` to force that fallback.
@@ -22,7 +22,7 @@ from moegs.kernels import _build
 
 __all__ = ["check", "is_available", "library", "library_path", "load_error"]
 
-ABI_VERSION = 2  # must match MOEGS_ABI_VERSION in raster.c
+ABI_VERSION = 3  # must match MOEGS_ABI_VERSION in raster.c
 DISABLE_ENV = "MOEGS_DISABLE_CPU_KERNEL"
 _HERE = Path(__file__).resolve().parent
 _ERRORS = {-1: "out of memory", -2: "groups out of range [0, num_groups)", -3: "invalid arguments"}
@@ -51,6 +51,15 @@ def _declare(lib: ctypes.CDLL) -> None:
     lib.moegs_forward.argtypes = [i64, i64, i32, i32, i32, i32, i32] + [p] * 7 + [i64] + [p] * 7
     lib.moegs_backward.restype = ctypes.c_int
     lib.moegs_backward.argtypes = [i64, i64, i32, i32, i32, i32, i32] + [p] * 7 + [i64] + [p] * 10
+    f32 = ctypes.c_float
+    lib.moegs_project_forward.restype = ctypes.c_int
+    lib.moegs_project_forward.argtypes = [i64, i32] + [p] * 4 + [i32, i32, f32, f32, i32] + [p] * 5
+    lib.moegs_project_backward.restype = ctypes.c_int
+    lib.moegs_project_backward.argtypes = [i64, i32] + [p] * 4 + [f32, f32, i32] + [p] * 7
+    lib.moegs_covariance_forward.restype = ctypes.c_int
+    lib.moegs_covariance_forward.argtypes = [i64, i32] + [p] * 3
+    lib.moegs_covariance_backward.restype = ctypes.c_int
+    lib.moegs_covariance_backward.argtypes = [i64, i32] + [p] * 5
     for name in ("moegs_hashgrid_forward", "moegs_hashgrid_backward"):
         fn = getattr(lib, name)
         fn.restype = ctypes.c_int

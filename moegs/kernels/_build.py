@@ -1,15 +1,16 @@
 """How the compiled CPU library is built: shared by ``setup.py`` and ``python -m moegs.kernels build``.
 
-No ``-march=native`` (the wheel must run on any CPU of the architecture) and no ``-ffast-math``:
-the kernels must reproduce the float32 operation order of their torch references, so FMA contraction
-is switched off too. Loaded by path from ``setup.py``, so it imports nothing from moegs.
+No ``-march=native`` (the wheel must run on any CPU of the architecture: the compositing builds an
+AVX2 clone of its hot loops and picks it at load time) and no ``-ffast-math``: the kernels must
+reproduce the float32 operation order of their torch references, so FMA contraction is switched off
+too. Loaded by path from ``setup.py``, so it imports nothing from moegs.
 """
 
 from __future__ import annotations
 
 LIBRARY = "_cpu"
 """File stem of the library, built next to ``moegs/kernels/__init__.py``."""
-SOURCES = ("raster.c", "hashgrid.c")
+SOURCES = ("raster.c", "project.c", "hashgrid.c")
 """C files of the library, in ``moegs/kernels/``."""
 HEADERS = ("moegs_api.h",)
 """Header they share (export attribute, OpenMP), in ``moegs/kernels/``."""

@@ -22,19 +22,22 @@
  *   its pixel box overlaps; every tile list is sorted by depth because Gaussians are appended in
  *   depth order. A tile is processed by one thread, Gaussian-outer / pixel-inner: for each
  *   Gaussian of the list we visit only the pixels of (its box intersected with the tile), which
- *   is the bounding-box culling, and keep per-pixel state (T, accumulated colour, last
- *   contributor) in thread-local arrays. The per-pixel order of Gaussians is the tile-list order,
- *   i.e. depth order, so the result is the per-pixel front-to-back sum of the contract.
+ *   is the bounding-box culling, four pixels of a row at a time (see Lanes), and keep per-pixel
+ *   state (T, accumulated colour, last contributor) in thread-local arrays. The per-pixel order of
+ *   Gaussians is the tile-list order, i.e. depth order, so the result is the per-pixel
+ *   front-to-back sum of the contract.
  *
  * Determinism
  *   Every per-Gaussian reduction (contrib, gradients) goes through one slot per (tile, Gaussian)
- *   pair: a tile writes the sum over its pixels (fixed pixel order) into the slot of that pair,
+ *   pair: a tile writes the sum over its pixels (fixed lane and pixel order) into the slot of that pair,
  *   then each Gaussian sums its slots in a fixed order (its tiles, row-major). No atomics and no
  *   per-thread buffers, so results are bit-identical for any thread count and any schedule.
  *
- * Floating point: build WITHOUT -ffast-math and with -ffp-contract=off so that the power/alpha
- * expressions are evaluated exactly like the separate float32 torch ops of the reference (no FMA
- * contraction). Transmittance is carried in double (the reference uses a float64 log-cumsum).
+ * Floating point: build WITHOUT -ffast-math and with -ffp-contract=off so that the power
+ * expression is evaluated exactly like the separate float32 torch ops of the reference (no FMA
+ * contraction). exp is a vectorised polynomial within about 1 ulp of expf (exp_lanes), so alpha may
+ * differ from the reference's by an ulp. Transmittance is carried in double (the reference uses a
+ * float64 log-cumsum).
  */
 
 #include <math.h>
@@ -44,9 +47,10 @@
 
 #include "moegs_api.h"
 
-/* Bump when any exported signature (this file or hashgrid.c) or saved-state layout changes; the loader
- * checks it. 2: the hash encoding (hashgrid.c) joined the library. */
-#define MOEGS_ABI_VERSION 2
+/* Bump when any exported signature (this file, project.c or hashgrid.c) or saved-state layout changes;
+ * the loader checks it. 2: the hash encoding (hashgrid.c) joined the library; 3: the projection
+ * (project.c). */
+#define MOEGS_ABI_VERSION 3
 
 /* Constants of the contract. The float ones are the float32 values torch compares against
  * (a Python float compared with a float32 tensor is rounded to float32). */
@@ -60,7 +64,7 @@
 
 /* Cheap exact culling: alpha = opacity exp(power) < ALPHA_MIN whenever
  * power < log(ALPHA_MIN / opacity). We skip the exp (and the pixel) only when power is below that
- * bound minus a margin that dwarfs every float rounding involved (expf, the product, the cast of
+ * bound minus a margin that dwarfs every float rounding involved (the exp, the product, the cast of
  * the bound), so the skipped pixels are exactly pixels the contract skips. */
 #define POWER_CUT_MARGIN 1e-4
 
@@ -136,67 +140,6 @@ MOEGS_API int moegs_max_threads(void) {
  * platforms' linkers want PyInit_<name> exported). It is never meant to be imported: doing so
  * raises SystemError. The real entry points are the moegs_* symbols, used through ctypes. */
 MOEGS_API void *PyInit__cpu(void) { return 0; }
-
-/*
- * Row culling (exact): on a pixel row with offset dy, the pixels that can pass the alpha test
- * satisfy power(dx) >= pcut, i.e. the quadratic
- *     (a/2) dx^2 + (b dy) dx + (c/2 dy^2 + pcut) <= 0,
- * an interval of dx when a > 0. We solve it in double with pcut lowered by a margin that covers
- * the float32 rounding of `power` (relative to the size of its terms on this row), then widen
- * the pixel range by one pixel on each side. Pixels outside the returned [lo, hi] (tile-local)
- * are therefore pixels whose alpha test fails, so skipping them changes nothing. When the conic
- * is not usable (a <= 0, non-finite values) the whole range is kept. Returns 0 if the row is
- * certainly empty.
- */
-static inline int row_span(float dy, float mx, float ca, float cb, float cc, float pcut, int tx0,
-                           int lx0, int lx1, int *lo, int *hi) {
-    *lo = lx0;
-    *hi = lx1;
-    if (!(ca > 0.0f) || !isfinite(pcut) || !isfinite(cb) || !isfinite(cc)) return 1;
-    /* largest |dx| on this row segment bounds the size of the terms of power */
-    const double dxa = fabs((double)tx0 + lx0 + 0.5 - mx), dxb = fabs((double)tx0 + lx1 + 0.5 - mx);
-    const double mdx = dxa > dxb ? dxa : dxb, ady = fabs((double)dy);
-    const double terms = 0.5 * fabs((double)ca) * mdx * mdx + 0.5 * fabs((double)cc) * ady * ady +
-                         fabs((double)cb) * mdx * ady;
-    const double cut = (double)pcut - 1e-3 - 4e-6 * terms;
-    const double qa = 0.5 * (double)ca, qb = (double)cb * dy, qc = 0.5 * (double)cc * dy * dy + cut;
-    const double disc = qb * qb - 4.0 * qa * qc;
-    if (disc < 0.0) return 0;
-    const double sq = sqrt(disc);
-    /* pixel x has dx = x + 0.5 - mx, so x = mx - 0.5 + dx */
-    const double xlo = (double)mx - 0.5 + (-qb - sq) / (2.0 * qa) - (double)tx0;
-    const double xhi = (double)mx - 0.5 + (-qb + sq) / (2.0 * qa) - (double)tx0;
-    if (xlo > (double)lx1 + 1.0 || xhi < (double)lx0 - 1.0) return 0;
-    if (xlo - 1.0 > (double)lx0) *lo = (int)floor(xlo) - 1;
-    if (xhi + 1.0 < (double)lx1) *hi = (int)ceil(xhi) + 1;
-    if (*lo < lx0) *lo = lx0;
-    if (*hi > lx1) *hi = lx1;
-    return *lo <= *hi;
-}
-
-/* Row ly (tile-local) of a footprint: the pixel-centre offset dy and the tile-local pixels [lo, hi]
- * that can pass the alpha test (row_span); lo > hi when none can. */
-typedef struct {
-    float dy;
-    int lo, hi;
-} Row;
-
-static inline Row footprint_row(const Footprint *f, Tile r, int ly) {
-    Row row;
-    row.dy = ((float)(r.y0 + ly) + 0.5f) - f->my;
-    if (!row_span(row.dy, f->mx, f->ca, f->cb, f->cc, f->pcut, r.x0, f->lx0, f->lx1, &row.lo, &row.hi)) {
-        row.lo = 1;
-        row.hi = 0;
-    }
-    return row;
-}
-
-/* The Gaussian's exponent at pixel lx (tile-local) of a row with offset dy, in the float32 operation
- * order of the torch reference; *dx is the pixel centre's x offset. */
-static inline float footprint_power(const Footprint *f, Tile r, int lx, float dy, float *dx) {
-    *dx = ((float)(r.x0 + lx) + 0.5f) - f->mx;
-    return -0.5f * (f->ca * *dx * *dx + f->cc * dy * dy) - f->cb * *dx * dy;
-}
 
 /* Inclusive pixel box of a Gaussian, exactly as _torch._bbox_pixels computes it in float32:
  *   x0 = clamp_min(ceil(mx - r - 0.5), 0),  x1 = clamp_max(floor(mx + r - 0.5), W - 1).
@@ -305,6 +248,255 @@ static int fill_lists(int64_t n, int32_t W, int32_t tile, const int32_t *box, co
 }
 
 /*
+ * Lanes. The per-pixel work runs four pixels of a tile row at a time (GCC/clang vector extensions):
+ * float lanes for the contract's float32 exponent and alpha, double lanes for the transmittance and
+ * the backward's sums. Per-Gaussian sums are kept per lane and added lane by lane at the end of the
+ * Gaussian's footprint, so results do not depend on the thread count. The tile functions are built
+ * twice on x86-64 Linux (AVX2 and the baseline) and the loader picks one per CPU at load time.
+ */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && defined(__linux__)
+#define LANE_CLONES __attribute__((target_clones("avx2", "default")))
+#pragma GCC diagnostic ignored "-Wpsabi" /* 32-byte vectors in always-inlined helpers only */
+#else
+#define LANE_CLONES
+#endif
+#define LANES 4
+#define INLINE static inline __attribute__((always_inline))
+
+typedef float f4 __attribute__((vector_size(16)));
+typedef int32_t i4 __attribute__((vector_size(16)));
+typedef double d4 __attribute__((vector_size(32)));
+typedef int64_t l4 __attribute__((vector_size(32)));
+
+INLINE f4 f4_splat(float v) { return (f4){v, v, v, v}; }
+INLINE d4 d4_splat(double v) { return (d4){v, v, v, v}; }
+INLINE f4 f4_load(const float *p) { f4 v; memcpy(&v, p, sizeof v); return v; }
+INLINE void f4_store(float *p, f4 v) { memcpy(p, &v, sizeof v); }
+INLINE d4 d4_load(const double *p) { d4 v; memcpy(&v, p, sizeof v); return v; }
+INLINE void d4_store(double *p, d4 v) { memcpy(p, &v, sizeof v); }
+INLINE i4 i4_load(const int32_t *p) { i4 v; memcpy(&v, p, sizeof v); return v; }
+INLINE void i4_store(int32_t *p, i4 v) { memcpy(p, &v, sizeof v); }
+/* m ? a : b per lane (m: all ones or zero per lane) */
+INLINE f4 f4_sel(i4 m, f4 a, f4 b) { return (f4)(((i4)a & m) | ((i4)b & ~m)); }
+INLINE d4 d4_sel(l4 m, d4 a, d4 b) { return (d4)(((l4)a & m) | ((l4)b & ~m)); }
+INLINE i4 i4_sel(i4 m, i4 a, i4 b) { return (a & m) | (b & ~m); }
+INLINE l4 wide(i4 m) { return __builtin_convertvector(m, l4); }
+INLINE i4 narrow(l4 m) { return __builtin_convertvector(m, i4); }
+INLINE d4 d4_of(f4 v) { return __builtin_convertvector(v, d4); }
+INLINE f4 f4_of(d4 v) { return __builtin_convertvector(v, f4); }
+INLINE int any(i4 m) {
+    uint64_t w[2];
+    memcpy(w, &m, sizeof w);
+    return (w[0] | w[1]) != 0;
+}
+INLINE int count(i4 m) { return -(m[0] + m[1] + m[2] + m[3]); }
+INLINE double d4_sum(d4 v) { return ((v[0] + v[1]) + v[2]) + v[3]; }
+INLINE float f4_sum(f4 v) { return ((v[0] + v[1]) + v[2]) + v[3]; }
+
+/* exp of float lanes: Cody-Waite reduction x = n ln2 + r, |r| <= ln2/2, e^r = 1 + r + r^2 q(r) with
+ * the degree-5 minimax q of Cephes' expf, evaluated in Estrin form (a short dependency chain), scaled
+ * by 2^n. About 1 ulp from expf; the contract only uses lanes in [log(ALPHA_MIN), 0], the others are
+ * clamped to [-87, 0] (NaN to 0) so that no lane overflows the exponent. */
+INLINE f4 exp_lanes(f4 x) {
+    const f4 lo = f4_splat(-87.0f), hi = f4_splat(0.0f);
+    x = f4_sel(x < lo, lo, x);
+    x = f4_sel(x > hi, hi, x);
+    x = f4_sel(x == x, x, hi);
+    const f4 shift = f4_splat(12582912.0f); /* 1.5 * 2^23: adding it rounds to an integer */
+    const f4 n = (x * f4_splat(1.44269504088896341f) + shift) - shift;
+    const f4 r = (x - n * f4_splat(0.693359375f)) - n * f4_splat(-2.12194440e-4f);
+    const f4 r2 = r * r;
+    const f4 q01 = f4_splat(5.0000001201e-1f) + f4_splat(1.6666665459e-1f) * r;
+    const f4 q23 = f4_splat(4.1665795894e-2f) + f4_splat(8.3334519073e-3f) * r;
+    const f4 q45 = f4_splat(1.3981999507e-3f) + f4_splat(1.9875691500e-4f) * r;
+    const f4 q = q01 + r2 * (q23 + r2 * q45);
+    const f4 p = (f4_splat(1.0f) + r) + r2 * q;
+    const i4 scale = (__builtin_convertvector(n, i4) + 127) << 23;
+    return p * (f4)scale;
+}
+
+/* One 4-pixel chunk of a footprint row: lanes cx .. cx+3 (tile-local), the mask of lanes inside
+ * [lx0, lx1], their x offsets dx and the exponent, in the float32 operation order of the reference. */
+typedef struct {
+    i4 in;
+    f4 dx, power;
+} Chunk;
+
+INLINE Chunk chunk_at(const Footprint *f, Tile r, int cx, float dy) {
+    Chunk c;
+    const i4 lx = (i4){cx, cx + 1, cx + 2, cx + 3};
+    c.in = (lx >= f->lx0) & (lx <= f->lx1);
+    c.dx = (__builtin_convertvector(lx + r.x0, f4) + f4_splat(0.5f)) - f4_splat(f->mx);
+    const f4 ca = f4_splat(f->ca), cb = f4_splat(f->cb);
+    const float cdd = f->cc * dy * dy;
+    c.power = f4_splat(-0.5f) * (ca * c.dx * c.dx + f4_splat(cdd)) - cb * c.dx * f4_splat(dy);
+    return c;
+}
+
+/* Lanes whose exponent can pass the alpha test: not (power > 0 or power < cut-off), as the scalar
+ * contract tests it (a NaN exponent is not skipped there either). */
+INLINE i4 may_pass(const Footprint *f, Chunk c) {
+    return c.in & ~(c.power > f4_splat(0.0f)) & ~(c.power < f4_splat(f->pcut));
+}
+
+/* Ask for the per-Gaussian records of the Gaussian `ahead` list entries away: the tile lists visit
+ * Gaussians in depth order, i.e. scattered through memory, and every pair starts with these loads. */
+#define PREFETCH_AHEAD 6
+INLINE void prefetch_gaussian(const float *geo, const int32_t *box, const int32_t *grp, const float *col,
+                              int64_t d, int32_t k) {
+    __builtin_prefetch(geo + (int64_t)k * GEO);
+    __builtin_prefetch(box + 4 * (int64_t)k);
+    __builtin_prefetch(grp + k);
+    __builtin_prefetch(col + (int64_t)k * d);
+}
+
+/* Row stride of the per-tile pixel state: the tile width rounded up to whole chunks. */
+static inline int lane_stride(int tile) { return (tile + LANES - 1) / LANES * LANES; }
+
+/* Forward of one tile (see moegs_forward). State, per (group, pixel) s = g * np + ly * stride + lx:
+ * T (double), acc (float, channel-major: (g * d + c) * np + ...), lst, done (0 / -1). */
+LANE_CLONES
+static void forward_tile(Tile r, int G, int64_t d, int tile, const float *geo, const int32_t *box,
+                         const int32_t *grp, const float *col, const int32_t *list, int64_t start,
+                         int64_t end, float *slot, double *T, float *acc, int32_t *lst, int32_t *done,
+                         int64_t *live_g) {
+    const int stride = lane_stride(tile);
+    const int64_t np = (int64_t)tile * stride;
+    for (int64_t s = 0; s < G * np; ++s) { T[s] = 1.0; lst[s] = -1; done[s] = 0; }
+    memset(acc, 0, (size_t)(G * d * np) * sizeof(float));
+    int64_t live = (int64_t)G * r.npix;
+    for (int gi = 0; gi < G; ++gi) live_g[gi] = r.npix;
+    int64_t pos = start;
+    for (; pos < end && live > 0; ++pos) {
+        if (pos + PREFETCH_AHEAD < end) prefetch_gaussian(geo, box, grp, col, d, list[pos + PREFETCH_AHEAD]);
+        const int32_t k = list[pos];
+        const int32_t gk = grp[k];
+        if (live_g[gk] == 0) { slot[pos] = 0.0f; continue; }
+        const Footprint f = footprint(geo, box, k, r);
+        const float *ck = col + (int64_t)k * d;
+        const i4 index = (i4){0, 0, 0, 0} + (int32_t)(pos - start);
+        f4 wsum = f4_splat(0.0f);
+        for (int ly = f.ly0; ly <= f.ly1; ++ly) {
+            const float dy = ((float)(r.y0 + ly) + 0.5f) - f.my;
+            for (int cx = f.lx0 / LANES * LANES; cx <= f.lx1; cx += LANES) {
+                const Chunk c = chunk_at(&f, r, cx, dy);
+                const int64_t s = (int64_t)gk * np + (int64_t)ly * stride + cx;
+                i4 m = may_pass(&f, c) & ~i4_load(done + s);
+                if (!any(m)) continue;
+                f4 a = f4_splat(f.op) * exp_lanes(c.power);
+                a = f4_sel(a > f4_splat(ALPHA_MAX), f4_splat(ALPHA_MAX), a);
+                m &= ~(a < f4_splat(ALPHA_MIN));
+                if (!any(m)) continue;
+                const d4 Ts = d4_load(T + s);
+                const d4 tn = Ts * (d4_splat(1.0) - d4_of(a));
+                const i4 fin = m & narrow(tn < d4_splat(T_MIN)); /* group finished: not composited */
+                if (any(fin)) {
+                    i4_store(done + s, i4_load(done + s) | fin);
+                    live -= count(fin);
+                    live_g[gk] -= count(fin);
+                    m &= ~fin;
+                }
+                const f4 w = f4_sel(m, a * f4_of(Ts), f4_splat(0.0f));
+                for (int64_t ch = 0; ch < d; ++ch) {
+                    float *ac = acc + ((int64_t)gk * d + ch) * np + (int64_t)ly * stride + cx;
+                    const f4 old = f4_load(ac);
+                    f4_store(ac, f4_sel(m, old + w * f4_splat(ck[ch]), old));
+                }
+                d4_store(T + s, d4_sel(wide(m), tn, Ts));
+                i4_store(lst + s, i4_sel(m, index, i4_load(lst + s)));
+                wsum += w;
+            }
+        }
+        slot[pos] = f4_sum(wsum);
+    }
+    for (; pos < end; ++pos) slot[pos] = 0.0f; /* tile retired early */
+}
+
+/* Backward of one tile (see moegs_backward). Per (group, pixel), laid out as in forward_tile: T (the
+ * transmittance, walked back from the final one), B (colour behind, channel-major), gi (the image
+ * gradient, channel-major), gaTf (alpha gradient times the final transmittance), lst; all double
+ * but lst. gcol: LANES * d doubles of scratch for the per-Gaussian colour sums. */
+LANE_CLONES
+static void backward_tile(Tile r, int G, int64_t d, int tile, const float *geo, const int32_t *box,
+                          const int32_t *grp, const float *col, const int32_t *list, int64_t start,
+                          int64_t end, int64_t stride_slot, float *slot, double *T,
+                          double *B, const double *gi, const double *gaTf, const int32_t *lst,
+                          const int32_t *maxlast_g, int32_t maxlast, double *gcol) {
+    const int stride = lane_stride(tile);
+    const int64_t np = (int64_t)tile * stride;
+    memset(B, 0, (size_t)(G * d * np) * sizeof(double));
+    /* Gaussians after the last contributor of every pixel get nothing from this tile */
+    for (int64_t pos = start + maxlast + 1; pos < end; ++pos)
+        memset(slot + pos * stride_slot, 0, (size_t)stride_slot * sizeof(float));
+    for (int32_t j = maxlast; j >= 0; --j) {
+        const int64_t pos = start + j;
+        if (j >= PREFETCH_AHEAD) prefetch_gaussian(geo, box, grp, col, d, list[pos - PREFETCH_AHEAD]);
+        const int32_t k = list[pos];
+        const int32_t gk = grp[k];
+        float *sl = slot + pos * stride_slot;
+        if (j > maxlast_g[gk]) { /* behind the last contributor of all its group's pixels */
+            memset(sl, 0, (size_t)stride_slot * sizeof(float));
+            continue;
+        }
+        const Footprint f = footprint(geo, box, k, r);
+        const float *ck = col + (int64_t)k * d;
+        const d4 zero = d4_splat(0.0);
+        d4 gmx = zero, gmy = zero, ga = zero, gb = zero, gc = zero, gop = zero;
+        for (int64_t ch = 0; ch < d; ++ch) d4_store(gcol + LANES * ch, zero);
+        const d4 ca = d4_splat(f.ca), cb = d4_splat(f.cb), cc = d4_splat(f.cc);
+        for (int ly = f.ly0; ly <= f.ly1; ++ly) {
+            const float dy = ((float)(r.y0 + ly) + 0.5f) - f.my;
+            const d4 dyd = d4_splat((double)dy);
+            for (int cx = f.lx0 / LANES * LANES; cx <= f.lx1; cx += LANES) {
+                const Chunk c = chunk_at(&f, r, cx, dy);
+                const int64_t s = (int64_t)gk * np + (int64_t)ly * stride + cx;
+                i4 m = may_pass(&f, c) & ~(i4_load(lst + s) < j); /* not behind the last contributor */
+                if (!any(m)) continue;
+                const f4 e = exp_lanes(c.power);
+                const f4 raw = f4_splat(f.op) * e;
+                const i4 clamped = raw > f4_splat(ALPHA_MAX);
+                const f4 a = f4_sel(clamped, f4_splat(ALPHA_MAX), raw);
+                m &= ~(a < f4_splat(ALPHA_MIN));
+                if (!any(m)) continue;
+                /* lanes outside m get w = 0 and dp = 0, so they add nothing below */
+                const l4 mw = wide(m);
+                const d4 ad = d4_of(a);
+                const d4 inv_om = d4_splat(1.0) / (d4_splat(1.0) - ad); /* a <= ALPHA_MAX: finite */
+                const d4 Ts = d4_load(T + s);
+                const d4 Tj = Ts * inv_om; /* transmittance in front of j */
+                d4_store(T + s, d4_sel(mw, Tj, Ts));
+                const d4 w = d4_sel(mw, ad * Tj, zero);
+                d4 dot_c = zero, dot_b = zero;
+                for (int64_t ch = 0; ch < d; ++ch) {
+                    const int64_t o = ((int64_t)gk * d + ch) * np + (int64_t)ly * stride + cx;
+                    const d4 gp = d4_load(gi + o);
+                    const d4 cch = d4_splat((double)ck[ch]);
+                    const d4 Bs = d4_load(B + o);
+                    d4_store(gcol + LANES * ch, d4_load(gcol + LANES * ch) + w * gp);
+                    dot_c += cch * gp;
+                    dot_b += Bs * gp;
+                    d4_store(B + o, Bs + w * cch);
+                }
+                const l4 live = wide(m & ~clamped); /* d alpha / d (opacity, power) = 0 when clamped */
+                const d4 dal = Tj * dot_c + (d4_load(gaTf + s) - dot_b) * inv_om;
+                const d4 dp = d4_sel(live, ad * dal, zero); /* dL/dpower */
+                const d4 dxd = d4_of(c.dx);
+                gop += d4_sel(live, d4_of(e) * dal, zero);
+                ga += d4_splat(-0.5) * dxd * dxd * dp;
+                gb += -dxd * dyd * dp;
+                gc += d4_splat(-0.5) * dyd * dyd * dp;
+                gmx += (ca * dxd + cb * dyd) * dp;
+                gmy += (cb * dxd + cc * dyd) * dp;
+            }
+        }
+        sl[0] = (float)d4_sum(gmx); sl[1] = (float)d4_sum(gmy);
+        sl[2] = (float)d4_sum(ga); sl[3] = (float)d4_sum(gb); sl[4] = (float)d4_sum(gc);
+        sl[5] = (float)d4_sum(gop);
+        for (int64_t ch = 0; ch < d; ++ch) sl[6 + ch] = (float)d4_sum(d4_load(gcol + LANES * ch));
+    }
+}
+
+/*
  * Step 2: forward.
  *   Inputs: the outputs of moegs_prepare and `total` (its return value).
  *   list [total] int32, pairpos [total] int64: filled here, kept by the caller for the backward.
@@ -329,15 +521,15 @@ MOEGS_API int moegs_forward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t 
     float *slot = (float *)malloc((size_t)(total > 0 ? total : 1) * sizeof(float));
     if (!slot) return ERR_NOMEM;
     int err = 0;
-    const int64_t npmax = (int64_t)tile * tile;
 
 #pragma omp parallel num_threads(nthreads)
     {
-        /* thread-local per-(group, pixel) state of the current tile, index s = g * npix + p */
-        double *T = (double *)malloc((size_t)(G * npmax) * sizeof(double));
-        float *acc = (float *)malloc((size_t)(G * npmax * d) * sizeof(float));
-        int32_t *lst = (int32_t *)malloc((size_t)(G * npmax) * sizeof(int32_t));
-        unsigned char *done = (unsigned char *)malloc((size_t)(G * npmax));
+        /* thread-local per-(group, pixel) state of the current tile (forward_tile) */
+        const int64_t np = (int64_t)tile * lane_stride(tile);
+        double *T = (double *)malloc((size_t)(G * np) * sizeof(double));
+        float *acc = (float *)malloc((size_t)(G * np * d) * sizeof(float));
+        int32_t *lst = (int32_t *)malloc((size_t)(G * np) * sizeof(int32_t));
+        int32_t *done = (int32_t *)malloc((size_t)(G * np) * sizeof(int32_t));
         int64_t *live_g = (int64_t *)malloc((size_t)G * sizeof(int64_t));
         const int ok = T && acc && lst && done && live_g;
         if (!ok) flag_error(&err);
@@ -346,60 +538,17 @@ MOEGS_API int moegs_forward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t 
         for (int64_t t = 0; t < ntiles; ++t) {
             if (!ok) continue;
             const Tile r = tile_at(t, ntx, tile, W, H);
-            const int64_t S = (int64_t)G * r.npix;
-            for (int64_t s = 0; s < S; ++s) { T[s] = 1.0; lst[s] = -1; done[s] = 0; }
-            memset(acc, 0, (size_t)(S * d) * sizeof(float));
-            int64_t live = S; /* (group, pixel) pairs not finished yet */
-            for (int gi = 0; gi < G; ++gi) live_g[gi] = r.npix; /* the same, per group */
-            const int64_t start = tile_off[t], end = tile_off[t + 1];
-            int64_t pos = start;
-            for (; pos < end && live > 0; ++pos) {
-                const int32_t k = list[pos];
-                const int32_t gk = grp[k];
-                /* every pixel of this Gaussian's group is finished: it composites nothing here
-                 * (a separate render of the group would already have retired the tile) */
-                if (live_g[gk] == 0) { slot[pos] = 0.0f; continue; }
-                const Footprint f = footprint(geo, box, k, r);
-                const float *ck = col + (int64_t)k * d;
-                float wsum = 0.0f;
-                for (int ly = f.ly0; ly <= f.ly1; ++ly) {
-                    const Row row = footprint_row(&f, r, ly);
-                    const float dy = row.dy;
-                    for (int lx = row.lo; lx <= row.hi; ++lx) {
-                        const int64_t s = (int64_t)gk * r.npix + ly * r.w + lx;
-                        if (done[s]) continue;
-                        float dx;
-                        const float power = footprint_power(&f, r, lx, dy, &dx);
-                        if (power > 0.0f || power < f.pcut) continue;
-                        float a = f.op * expf(power);
-                        if (a > ALPHA_MAX) a = ALPHA_MAX;
-                        if (a < ALPHA_MIN) continue;
-                        const double tn = T[s] * (1.0 - (double)a);
-                        if (tn < T_MIN) { /* group finished here; this Gaussian is not composited */
-                            done[s] = 1;
-                            --live;
-                            --live_g[gk];
-                            continue;
-                        }
-                        const float w = a * (float)T[s];
-                        float *as = acc + s * d;
-                        for (int64_t c = 0; c < d; ++c) as[c] += w * ck[c];
-                        T[s] = tn;
-                        lst[s] = (int32_t)(pos - start);
-                        wsum += w;
-                    }
-                }
-                slot[pos] = wsum;
-            }
-            for (; pos < end; ++pos) slot[pos] = 0.0f; /* tile retired early */
-
+            forward_tile(r, G, d, tile, geo, box, grp, col, list, tile_off[t], tile_off[t + 1], slot, T, acc,
+                         lst, done, live_g);
             /* write the tile out */
+            const int stride = lane_stride(tile);
             for (int gi = 0; gi < G; ++gi)
                 for (int ly = 0; ly < r.h; ++ly)
                     for (int lx = 0; lx < r.w; ++lx) {
-                        const int64_t s = (int64_t)gi * r.npix + ly * r.w + lx;
+                        const int64_t s = (int64_t)gi * np + (int64_t)ly * stride + lx;
                         const int64_t o = ((int64_t)gi * H + r.y0 + ly) * W + r.x0 + lx;
-                        memcpy(image + o * d, acc + s * d, (size_t)d * sizeof(float));
+                        const float *ac = acc + (int64_t)gi * d * np + (int64_t)ly * stride + lx;
+                        for (int64_t c = 0; c < d; ++c) image[o * d + c] = ac[c * np];
                         alpha[o] = (float)(1.0 - T[s]);
                         tfinal[o] = T[s];
                         last[o] = lst[s];
@@ -451,124 +600,68 @@ MOEGS_API int moegs_backward(int64_t n, int64_t d, int32_t G, int32_t W, int32_t
     if (ntiles < 0) return ERR_ARGS;
     if (nthreads < 1) nthreads = 1;
     /* per pair: d(mx, my), d(a, b, c), d(opacity), d(colour)[d] */
-    const int64_t stride = 6 + d;
-    float *slot = (float *)malloc((size_t)(total > 0 ? total : 1) * stride * sizeof(float));
+    const int64_t stride_slot = 6 + d;
+    float *slot = (float *)malloc((size_t)(total > 0 ? total : 1) * stride_slot * sizeof(float));
     if (!slot) return ERR_NOMEM;
     int err = 0;
-    const int64_t npmax = (int64_t)tile * tile;
 
 #pragma omp parallel num_threads(nthreads)
     {
-        double *T = (double *)malloc((size_t)(G * npmax) * sizeof(double));
-        double *Tf = (double *)malloc((size_t)(G * npmax) * sizeof(double));
-        double *B = (double *)malloc((size_t)(G * npmax * d) * sizeof(double));
-        float *gi_loc = (float *)malloc((size_t)(G * npmax * d) * sizeof(float));
-        float *ga_loc = (float *)malloc((size_t)(G * npmax) * sizeof(float));
-        int32_t *lst = (int32_t *)malloc((size_t)(G * npmax) * sizeof(int32_t));
-        double *gcol = (double *)malloc((size_t)d * sizeof(double));
+        /* thread-local per-(group, pixel) state of the current tile (backward_tile) */
+        const int stride = lane_stride(tile);
+        const int64_t np = (int64_t)tile * stride;
+        double *T = (double *)malloc((size_t)(G * np) * sizeof(double));
+        double *B = (double *)malloc((size_t)(G * np * d) * sizeof(double));
+        double *gi = (double *)malloc((size_t)(G * np * d) * sizeof(double));
+        double *gaTf = (double *)malloc((size_t)(G * np) * sizeof(double));
+        int32_t *lst = (int32_t *)malloc((size_t)(G * np) * sizeof(int32_t));
+        double *gcol = (double *)malloc((size_t)(LANES * d) * sizeof(double));
         int32_t *maxlast_g = (int32_t *)malloc((size_t)G * sizeof(int32_t));
-        const int ok = T && Tf && B && gi_loc && ga_loc && lst && gcol && maxlast_g;
+        const int ok = T && B && gi && gaTf && lst && gcol && maxlast_g;
         if (!ok) flag_error(&err);
 
 #pragma omp for schedule(dynamic, 1)
         for (int64_t t = 0; t < ntiles; ++t) {
             if (!ok) continue;
             const Tile r = tile_at(t, ntx, tile, W, H);
-            const int64_t start = tile_off[t], end = tile_off[t + 1];
-            /* load the per-pixel state of the tile */
+            /* load the per-pixel state of the tile (lanes outside the tile: neutral values, never used) */
             int32_t maxlast = -1;
+            for (int64_t s = 0; s < G * np; ++s) { T[s] = 1.0; gaTf[s] = 0.0; lst[s] = -1; }
+            memset(gi, 0, (size_t)(G * np * d) * sizeof(double));
             for (int g = 0; g < G; ++g) {
                 maxlast_g[g] = -1;
                 for (int ly = 0; ly < r.h; ++ly)
                     for (int lx = 0; lx < r.w; ++lx) {
-                        const int64_t s = (int64_t)g * r.npix + ly * r.w + lx;
+                        const int64_t s = (int64_t)g * np + (int64_t)ly * stride + lx;
                         const int64_t o = ((int64_t)g * H + r.y0 + ly) * W + r.x0 + lx;
-                        T[s] = Tf[s] = tfinal[o];
+                        T[s] = tfinal[o];
+                        gaTf[s] = (double)grad_alpha[o] * tfinal[o];
                         lst[s] = last[o];
                         if (last[o] > maxlast_g[g]) maxlast_g[g] = last[o];
-                        ga_loc[s] = grad_alpha[o];
-                        memcpy(gi_loc + s * d, grad_image + o * d, (size_t)d * sizeof(float));
+                        for (int64_t c = 0; c < d; ++c)
+                            gi[((int64_t)g * d + c) * np + (int64_t)ly * stride + lx] = grad_image[o * d + c];
                     }
                 if (maxlast_g[g] > maxlast) maxlast = maxlast_g[g];
             }
-            memset(B, 0, (size_t)((int64_t)G * r.npix * d) * sizeof(double));
-            /* Gaussians after the last contributor of every pixel get nothing from this tile */
-            for (int64_t pos = start + maxlast + 1; pos < end; ++pos)
-                memset(slot + pos * stride, 0, (size_t)stride * sizeof(float));
-
-            for (int32_t j = maxlast; j >= 0; --j) {
-                const int64_t pos = start + j;
-                const int32_t k = list[pos];
-                const int32_t gk = grp[k];
-                float *sl = slot + pos * stride;
-                if (j > maxlast_g[gk]) { /* behind the last contributor of all its group's pixels */
-                    memset(sl, 0, (size_t)stride * sizeof(float));
-                    continue;
-                }
-                const Footprint f = footprint(geo, box, k, r);
-                const float *ck = col + (int64_t)k * d;
-                double gmx = 0, gmy = 0, ga = 0, gb = 0, gc = 0, gop = 0;
-                for (int64_t c = 0; c < d; ++c) gcol[c] = 0.0;
-                for (int ly = f.ly0; ly <= f.ly1; ++ly) {
-                    const Row row = footprint_row(&f, r, ly);
-                    const float dy = row.dy;
-                    for (int lx = row.lo; lx <= row.hi; ++lx) {
-                        const int64_t s = (int64_t)gk * r.npix + ly * r.w + lx;
-                        if (j > lst[s]) continue; /* behind this pixel's last contributor */
-                        float dx; /* alpha recomputed exactly as in the forward */
-                        const float power = footprint_power(&f, r, lx, dy, &dx);
-                        if (power > 0.0f || power < f.pcut) continue;
-                        const float e = expf(power);
-                        const float raw = f.op * e;
-                        const int clamped = raw > ALPHA_MAX;
-                        const float a = clamped ? ALPHA_MAX : raw;
-                        if (a < ALPHA_MIN) continue;
-                        const double inv_om = 1.0 / (1.0 - (double)a); /* 1 / (1 - alpha_j) */
-                        const double Tj = T[s] * inv_om; /* transmittance in front of j */
-                        T[s] = Tj;
-                        const double w = (double)a * Tj;
-                        const float *gp = gi_loc + s * d;
-                        double *Bs = B + s * d;
-                        double dot_c = 0.0, dot_b = 0.0;
-                        for (int64_t c = 0; c < d; ++c) {
-                            gcol[c] += w * gp[c];
-                            dot_c += (double)ck[c] * gp[c];
-                            dot_b += Bs[c] * gp[c];
-                            Bs[c] += w * ck[c];
-                        }
-                        if (clamped) continue; /* d alpha / d (opacity, power) = 0 */
-                        const double dal = Tj * dot_c + ((double)ga_loc[s] * Tf[s] - dot_b) * inv_om;
-                        gop += (double)e * dal;
-                        const double dp = (double)a * dal; /* dL/dpower */
-                        ga += -0.5 * (double)dx * dx * dp;
-                        gb += -(double)dx * dy * dp;
-                        gc += -0.5 * (double)dy * dy * dp;
-                        gmx += ((double)f.ca * dx + (double)f.cb * dy) * dp;
-                        gmy += ((double)f.cb * dx + (double)f.cc * dy) * dp;
-                    }
-                }
-                sl[0] = (float)gmx; sl[1] = (float)gmy;
-                sl[2] = (float)ga; sl[3] = (float)gb; sl[4] = (float)gc;
-                sl[5] = (float)gop;
-                for (int64_t c = 0; c < d; ++c) sl[6 + c] = (float)gcol[c];
-            }
+            backward_tile(r, G, d, tile, geo, box, grp, col, list, tile_off[t], tile_off[t + 1], stride_slot,
+                          slot, T, B, gi, gaTf, lst, maxlast_g, maxlast, gcol);
         }
-        free(T); free(Tf); free(B); free(gi_loc); free(ga_loc); free(lst); free(gcol); free(maxlast_g);
+        free(T); free(B); free(gi); free(gaTf); free(lst); free(gcol); free(maxlast_g);
     }
     if (err) { free(slot); return ERR_NOMEM; }
 
     /* reduce the pair slots per Gaussian in a fixed order and scatter to the original order */
 #pragma omp parallel num_threads(nthreads) if (total > PAR_MIN)
     {
-        double *acc = (double *)malloc((size_t)stride * sizeof(double));
+        double *acc = (double *)malloc((size_t)stride_slot * sizeof(double));
         if (!acc) flag_error(&err);
 #pragma omp for schedule(static)
         for (int64_t k = 0; k < n; ++k) {
             if (!acc) continue;
-            for (int64_t c = 0; c < stride; ++c) acc[c] = 0.0;
+            for (int64_t c = 0; c < stride_slot; ++c) acc[c] = 0.0;
             for (int64_t j = gstart[k]; j < gstart[k + 1]; ++j) {
-                const float *sl = slot + pairpos[j] * stride;
-                for (int64_t c = 0; c < stride; ++c) acc[c] += sl[c];
+                const float *sl = slot + pairpos[j] * stride_slot;
+                for (int64_t c = 0; c < stride_slot; ++c) acc[c] += sl[c];
             }
             const int64_t i = order[k];
             grad_means[2 * i] = (float)acc[0]; grad_means[2 * i + 1] = (float)acc[1];

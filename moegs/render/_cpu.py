@@ -1,14 +1,18 @@
-"""Compiled CPU compositing (``moegs/kernels/raster.c``, C + OpenMP via ctypes), forward and backward.
+"""Compiled CPU compositing and projection (``moegs/kernels/raster.c``, ``project.c``; C + OpenMP via
+ctypes), forward and backward.
 
 ``composite`` has exactly the signature, return values and maths of
 :func:`moegs.render._torch._composite` (see that module's docstring for the contract); it is the
-fast CPU path, ``_torch._composite`` is the oracle it is tested against. Every buffer is a torch
-tensor allocated here and passed to C as a raw pointer. If the compiled library is missing or stale,
-``is_available()`` is False and ``load_error()`` says why (:mod:`moegs.kernels`); callers fall back to
-``_torch``.
+fast CPU path, ``_torch._composite`` is the oracle it is tested against. ``covariance_3d`` and
+``project`` are those of :mod:`moegs.render.projection` for float32 inputs: their forwards equal the
+references to the bit (radii included), their backwards are the chain rule of the same graphs. Every
+buffer is a torch tensor allocated here and passed to C as a raw pointer. If the compiled library is
+missing or stale, ``is_available()`` is False and ``load_error()`` says why (:mod:`moegs.kernels`);
+callers fall back to the references.
 
 Results are deterministic and bit-identical for any thread count (per-Gaussian sums go through
-per-(tile, Gaussian) slots reduced in a fixed order). Outputs are float32 whatever the input dtype.
+per-(tile, Gaussian) slots reduced in a fixed order). ``composite``'s outputs are float32 whatever the
+input dtype; ``covariance_3d`` and ``project`` hand other dtypes to the references.
 """
 
 from __future__ import annotations
@@ -17,10 +21,13 @@ import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
+from moegs.camera import Camera
 from moegs.kernels import check as _check
 from moegs.kernels import is_available, library, library_path, load_error
+from moegs.render import projection as _reference
+from moegs.render.projection import BLUR_3DGS, Projection
 
-__all__ = ["composite", "is_available", "load_error", "library_path", "TILE_SIZE"]
+__all__ = ["composite", "covariance_3d", "project", "is_available", "load_error", "library_path", "TILE_SIZE"]
 
 TILE_SIZE = 16  # pixels per tile side; only affects speed, never the result (8 and 16 measured within 5%)
 
@@ -175,3 +182,137 @@ def composite(
         height,
         num_groups,
     )
+
+
+# -- projection ---------------------------------------------------------------------------------------
+def _camera_record(camera: Camera, eps2d: float) -> Tensor:
+    """``project.c``'s camera record ``[21]`` float32: R (9), t (3), fx, fy, cx, cy, the Jacobian clamp
+    (4) and eps2d, each the float32 value the reference's operations use."""
+    w2c = camera.world_to_camera.to(torch.float32)
+    scalars = [camera.fx, camera.fy, camera.cx, camera.cy, *_reference._jacobian_limits(camera), eps2d]
+    return torch.cat([w2c[:3, :3].reshape(9), w2c[:3, 3], torch.tensor(scalars, dtype=torch.float32)])
+
+
+class _Project(torch.autograd.Function):
+    """Autograd wrapper; inputs are contiguous float32 CPU tensors."""
+
+    @staticmethod
+    def forward(ctx, means, covars, opacities, cam, width, height, near, far, antialiased):
+        lib = library()
+        n = means.shape[0]
+        means2d = torch.empty(n, 2, dtype=torch.float32)
+        conics = torch.empty(n, 3, dtype=torch.float32)
+        opac_out = torch.empty(n, dtype=torch.float32)
+        depths = torch.empty(n, dtype=torch.float32)
+        radii = torch.empty(n, dtype=torch.int32)
+        code = lib.moegs_project_forward(
+            n, torch.get_num_threads(), _ptr(means), _ptr(covars), _ptr(opacities), cam.data_ptr(),
+            width, height, near, far, int(antialiased),
+            _ptr(means2d), _ptr(conics), _ptr(opac_out), _ptr(depths), _ptr(radii),
+        )  # fmt: skip
+        _check(code, "project forward")
+        ctx.save_for_backward(means, covars, opacities, cam)
+        ctx.settings = (near, far, antialiased)
+        ctx.mark_non_differentiable(radii)
+        return means2d, conics, opac_out, depths, radii
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, g_means2d, g_conics, g_opac_out, g_depths, _g_radii):
+        lib = library()
+        means, covars, opacities, cam = ctx.saved_tensors
+        near, far, antialiased = ctx.settings
+        n = means.shape[0]
+
+        # kept in locals: C reads them through raw pointers
+        grads_out = [
+            torch.zeros(shape) if g is None else g.to(torch.float32).contiguous()
+            for g, shape in ((g_means2d, (n, 2)), (g_conics, (n, 3)), (g_opac_out, (n,)), (g_depths, (n,)))
+        ]
+        g_means = torch.empty(n, 3, dtype=torch.float32)
+        g_covars = torch.empty(n, 3, 3, dtype=torch.float32)
+        g_opac = torch.empty(n, dtype=torch.float32)
+        code = lib.moegs_project_backward(
+            n, torch.get_num_threads(), _ptr(means), _ptr(covars), _ptr(opacities), cam.data_ptr(),
+            near, far, int(antialiased), *(_ptr(g) for g in grads_out),
+            _ptr(g_means), _ptr(g_covars), _ptr(g_opac),
+        )  # fmt: skip
+        _check(code, "project backward")
+        need = ctx.needs_input_grad
+        return (
+            g_means if need[0] else None,
+            g_covars if need[1] else None,
+            g_opac if need[2] else None,
+            None, None, None, None, None, None,
+        )  # fmt: skip
+
+
+def project(
+    means: Tensor,  # [N, 3]
+    covars: Tensor,  # [N, 3, 3]
+    opacities: Tensor,  # [N]
+    camera: Camera,
+    *,
+    eps2d: float = BLUR_3DGS,
+    antialiased: bool = False,
+) -> Projection:
+    """:func:`moegs.render.projection.project` with the compiled kernel (float32 CPU tensors; other
+    dtypes, or a missing library, go to that reference). Differentiable w.r.t. ``means``, ``covars``
+    and ``opacities``."""
+    tensors = (means, covars, opacities)
+    if library() is None or any(t.dtype != torch.float32 or t.device.type != "cpu" for t in tensors):
+        return _reference.project(means, covars, opacities, camera, eps2d=eps2d, antialiased=antialiased)
+    n = means.shape[0]
+    if means.shape != (n, 3) or covars.shape != (n, 3, 3) or opacities.shape != (n,):
+        raise ValueError(
+            f"project: expected means [N, 3], covars [N, 3, 3] and opacities [N], got "
+            f"{tuple(means.shape)}, {tuple(covars.shape)} and {tuple(opacities.shape)}"
+        )
+    means2d, conics, opac_out, depths, radii = _Project.apply(
+        means.contiguous(), covars.contiguous(), opacities.contiguous(), _camera_record(camera, eps2d),
+        camera.width, camera.height, camera.near, camera.far, antialiased,
+    )  # fmt: skip
+    return Projection(means2d=means2d, conics=conics, opacities=opac_out, depths=depths, radii=radii)
+
+
+class _Covariance(torch.autograd.Function):
+    """Autograd wrapper; inputs are contiguous float32 CPU tensors."""
+
+    @staticmethod
+    def forward(ctx, quats, scales):
+        covars = torch.empty(quats.shape[0], 3, 3, dtype=torch.float32)
+        code = library().moegs_covariance_forward(
+            quats.shape[0], torch.get_num_threads(), _ptr(quats), _ptr(scales), _ptr(covars)
+        )
+        _check(code, "covariance forward")
+        ctx.save_for_backward(quats, scales)
+        return covars
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, g_covars):
+        quats, scales = ctx.saved_tensors
+        g_covars = g_covars.to(torch.float32).contiguous()
+        g_quats, g_scales = torch.empty_like(quats), torch.empty_like(scales)
+        code = library().moegs_covariance_backward(
+            quats.shape[0], torch.get_num_threads(), _ptr(quats), _ptr(scales), _ptr(g_covars),
+            _ptr(g_quats), _ptr(g_scales),
+        )  # fmt: skip
+        _check(code, "covariance backward")
+        need = ctx.needs_input_grad
+        return (g_quats if need[0] else None, g_scales if need[1] else None)
+
+
+def covariance_3d(quats: Tensor, scales: Tensor) -> Tensor:
+    """:func:`moegs.render.projection.covariance_3d` with the compiled kernel (float32 CPU tensors; other
+    dtypes, or a missing library, go to that reference): ``[N, 3, 3]`` from quats ``[N, 4]`` and scales
+    ``[N, 3]``, differentiable w.r.t. both."""
+    if library() is None or any(t.dtype != torch.float32 or t.device.type != "cpu" for t in (quats, scales)):
+        return _reference.covariance_3d(quats, scales)
+    n = quats.shape[0]
+    if quats.shape != (n, 4) or scales.shape != (n, 3):
+        raise ValueError(
+            f"covariance_3d: expected quats [N, 4] and scales [N, 3], got {tuple(quats.shape)} and "
+            f"{tuple(scales.shape)}"
+        )
+    return _Covariance.apply(quats.contiguous(), scales.contiguous())

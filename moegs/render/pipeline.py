@@ -166,15 +166,18 @@ def _project_and_composite(
     features,
     camera,
     *,
-    composite,
+    kernels,
     groups,
     num_groups,
     eps2d,
     antialiased,
     with_contrib,
 ):
-    """EWA projection + one ``composite`` call; same inputs and outputs as ``_cuda.render``."""
-    proj = project(means, covars, opacities, camera, eps2d=eps2d, antialiased=antialiased)
+    """EWA projection + one compositing call; same inputs and outputs as ``_cuda.render``.
+    ``kernels``: the module whose ``project`` and ``composite`` run (``_cpu``, or None for the torch
+    references)."""
+    project_fn, composite = (project, _composite) if kernels is None else (kernels.project, kernels.composite)
+    proj = project_fn(means, covars, opacities, camera, eps2d=eps2d, antialiased=antialiased)
     image, alpha, contrib = composite(
         proj.means2d,
         proj.conics,
@@ -193,8 +196,7 @@ def _project_and_composite(
 def _rasterizer(backend: str):
     if backend == "cuda":
         return _cuda.render
-    composite = _cpu_kernel()[0].composite if backend == "cpu" else _composite
-    return partial(_project_and_composite, composite=composite)
+    return partial(_project_and_composite, kernels=_cpu_kernel()[0] if backend == "cpu" else None)
 
 
 # -- the shared pipeline ----------------------------------------------------------------------------
@@ -229,9 +231,10 @@ def _render(
     eps2d = options.eps2d
     if eps2d is None:
         eps2d = DILATION_ANTIALIASED if options.antialiased else BLUR_3DGS
+    covariance = _cpu_kernel()[0].covariance_3d if backend == "cpu" else covariance_3d
     image, alpha, radii, means2d, contrib = _rasterizer(backend)(
         frame.means,
-        covariance_3d(frame.quats, frame.scales),
+        covariance(frame.quats, frame.scales),
         frame.opacities,
         torch.cat(parts, dim=1),
         camera,

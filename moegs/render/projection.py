@@ -94,15 +94,24 @@ def quat_to_rotmat(quats: Tensor) -> Tensor:
 
 
 def covariance_3d(quats: Tensor, scales: Tensor) -> Tensor:
-    """World-space covariances ``R S S^T R^T`` ``[N, 3, 3]`` from quats ``[N, 4]`` and scales ``[N, 3]``."""
-    m = quat_to_rotmat(quats) * scales[:, None, :]
-    return m @ m.transpose(-1, -2)
+    """World-space covariances ``R S S^T R^T`` ``[N, 3, 3]`` from quats ``[N, 4]`` and scales ``[N, 3]``.
+
+    With ``M = R diag(s)``, entry ``(i, j)`` is ``(M_i0 M_j0 + M_i1 M_j1) + M_i2 M_j2``, element-wise in
+    that order, which the compiled kernel (``moegs.render._cpu.covariance_3d``) reproduces to the bit."""
+    rows = (quat_to_rotmat(quats) * scales[:, None, :]).unbind(-2)
+    entry = [[rows[i][:, 0] * rows[j][:, 0] + rows[i][:, 1] * rows[j][:, 1] + rows[i][:, 2] * rows[j][:, 2]
+              for j in range(3)] for i in range(3)]  # fmt: skip
+    return torch.stack([torch.stack(row, dim=-1) for row in entry], dim=-2)
 
 
 def camera_points(means: Tensor, camera: Camera) -> Tensor:
-    """Camera-space positions ``[N, 3]`` of world points ``[N, 3]``."""
+    """Camera-space positions ``[N, 3]`` of world points ``[N, 3]``.
+
+    Element-wise in a fixed order (``((x r0 + y r1) + z r2) + t``), so the compiled projection
+    (``moegs.render._cpu.project``) reproduces it to the bit."""
     w2c = camera.world_to_camera.to(means.dtype)
-    return means @ w2c[:3, :3].T + w2c[:3, 3]
+    x, y, z = means.unbind(-1)
+    return torch.stack([x * w2c[i, 0] + y * w2c[i, 1] + z * w2c[i, 2] + w2c[i, 3] for i in range(3)], dim=-1)
 
 
 def _jacobian_limits(camera: Camera) -> tuple[float, float, float, float]:
@@ -117,28 +126,40 @@ def _jacobian_limits(camera: Camera) -> tuple[float, float, float, float]:
     )
 
 
-def _covariance_2d(points: Tensor, covars: Tensor, depth: Tensor, camera: Camera) -> Tensor:
-    """EWA screen covariance ``J W Σ W^T J^T`` ``[N, 2, 2]`` (``depth`` ``[N]`` is a safe z > 0)."""
+def _covariance_2d(
+    points: Tensor, covars: Tensor, depth: Tensor, camera: Camera
+) -> tuple[Tensor, Tensor, Tensor]:
+    """EWA screen covariance ``J W Σ W^T J^T`` as its entries ``(xx, xy, yy)``, each ``[N]`` (``depth``
+    ``[N]`` is a safe z > 0). Element-wise products and sums in a fixed order (``J W``, then ``(J W) Σ``,
+    then the three entries), which the compiled projection reproduces to the bit."""
     u_min, u_max, v_min, v_max = _jacobian_limits(camera)
     u = (points[:, 0] / depth).clamp(u_min, u_max)
     v = (points[:, 1] / depth).clamp(v_min, v_max)
-    zero = torch.zeros_like(depth)
-    jac = torch.stack(
-        [
-            torch.stack([camera.fx / depth, zero, -camera.fx * u / depth], dim=-1),
-            torch.stack([zero, camera.fy / depth, -camera.fy * v / depth], dim=-1),
-        ],
-        dim=-2,
-    )  # [N, 2, 3]
-    t = jac @ camera.world_to_camera[:3, :3].to(points.dtype)
-    return t @ covars @ t.transpose(-1, -2)
+    j00, j02 = camera.fx / depth, -camera.fx * u / depth  # J = [[j00, 0, j02], [0, j11, j12]]
+    j11, j12 = camera.fy / depth, -camera.fy * v / depth
+    r = camera.world_to_camera[:3, :3].to(points.dtype)
+    t0 = [j00 * r[0, k] + j02 * r[2, k] for k in range(3)]  # rows of J W
+    t1 = [j11 * r[1, k] + j12 * r[2, k] for k in range(3)]
+    s = [[covars[:, m, k] for k in range(3)] for m in range(3)]
+    p0 = [t0[0] * s[0][k] + t0[1] * s[1][k] + t0[2] * s[2][k] for k in range(3)]  # rows of (J W) Σ
+    p1 = [t1[0] * s[0][k] + t1[1] * s[1][k] + t1[2] * s[2][k] for k in range(3)]
+    xx = p0[0] * t0[0] + p0[1] * t0[1] + p0[2] * t0[2]
+    xy = p0[0] * t1[0] + p0[1] * t1[1] + p0[2] * t1[2]
+    yy = p1[0] * t1[0] + p1[1] * t1[1] + p1[2] * t1[2]
+    return xx, xy, yy
+
+
+def _sqrt(x: Tensor) -> Tensor:
+    """Correctly rounded square root: torch's float32 ``sqrt`` on CPU is not (up to 1 ulp off); taken in
+    float64 and rounded back it is, so the compiled projection's ``sqrtf`` matches it to the bit."""
+    return torch.sqrt(x.double()).to(x.dtype) if x.dtype == torch.float32 else torch.sqrt(x)
 
 
 def _screen_radii(a: Tensor, b: Tensor, c: Tensor, det: Tensor) -> Tensor:
     """3DGS radius ``ceil(3 sqrt(lambda_max))`` ``[N]`` (float) of blurred 2D covariances ``(a, b, c)``."""
     mid = 0.5 * (a + c)
-    lambda_max = mid + torch.sqrt(torch.clamp(mid * mid - det, min=EIGEN_GAP_FLOOR))
-    return torch.ceil(RADIUS_SIGMAS * torch.sqrt(lambda_max))
+    lambda_max = mid + _sqrt(torch.clamp(mid * mid - det, min=EIGEN_GAP_FLOOR))
+    return torch.ceil(RADIUS_SIGMAS * _sqrt(lambda_max))
 
 
 def project(
@@ -168,8 +189,7 @@ def project(
         [camera.fx * points[:, 0] / depth + camera.cx, camera.fy * points[:, 1] / depth + camera.cy], dim=-1
     )
 
-    cov = _covariance_2d(points, covars, depth, camera)
-    raw_a, b, raw_c = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+    raw_a, b, raw_c = _covariance_2d(points, covars, depth, camera)
     a, c = raw_a + eps2d, raw_c + eps2d
     det = a * c - b * b
     valid = in_depth & torch.isfinite(det) & (det > 0)
@@ -181,7 +201,7 @@ def project(
         raw_det = raw_a * raw_c - b * b
         positive = valid & (raw_det > 0)
         ratio = torch.where(positive, raw_det / safe_det, torch.ones_like(det))
-        opacities = opacities * torch.where(positive, torch.sqrt(ratio), torch.zeros_like(det))
+        opacities = opacities * torch.where(positive, _sqrt(ratio), torch.zeros_like(det))
 
     with torch.no_grad():
         radius = torch.where(valid, _screen_radii(a, b, c, safe_det), torch.zeros_like(det))

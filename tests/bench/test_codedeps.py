@@ -1,4 +1,5 @@
-"""``bench.codedeps``: a task's code version hashes the library modules it can import, and only those."""
+"""``bench.codedeps``: a task's code version hashes the library modules it can import and the harness
+modules that compute a cell, and only those."""
 
 from __future__ import annotations
 
@@ -24,7 +25,9 @@ FILES = {
     "moegs/kernels/__init__.py": "",
     "moegs/kernels/k.c": "int k;\n",
     "bench/__init__.py": "",
-    "bench/run.py": "import moegs.a\nimport numpy\n",
+    "bench/run.py": "import moegs.a\nimport numpy\nimport bench.cells.kind\n",
+    "bench/cells/__init__.py": "",
+    "bench/cells/kind.py": "import moegs.c\n",
     "bench/named.py": 'API = "moegs.sub.e:f"\nTEXT = "moegs.c is not a name here"\n',
 }
 
@@ -45,6 +48,8 @@ def test_closure_follows_every_import_and_the_parent_packages(tree):
     assert codedeps.closure(["bench.run"], tree) == {
         "bench",
         "bench.run",
+        "bench.cells",
+        "bench.cells.kind",
         "moegs",
         "moegs.a",
         "moegs.b",
@@ -71,12 +76,16 @@ def test_version_moves_with_the_modules_it_hashes_and_no_other(tree):
     modules = codedeps.closure(["bench.run"], tree)
     before = codedeps.source_version(modules, tree)
     (tree / "moegs/unused.py").write_text("import moegs.a\nchanged = True\n")
-    (tree / "bench/run.py").write_text("import moegs.a\nimport numpy\n# harness code is not hashed\n")
+    (tree / "bench/run.py").write_text("import moegs.a\nimport numpy\nimport bench.cells.kind\nX = 1\n")
     codedeps.source_version.cache_clear()
-    assert codedeps.source_version(modules, tree) == before
+    assert codedeps.source_version(modules, tree) == before  # planning/reporting harness: not hashed
     (tree / "moegs/c.py").write_text("x = 2\n")
     codedeps.source_version.cache_clear()
-    assert codedeps.source_version(modules, tree) != before
+    changed = codedeps.source_version(modules, tree)
+    assert changed != before
+    (tree / "bench/cells/kind.py").write_text("import moegs.c\nSCALE = 2\n")  # a cell kind computes numbers
+    codedeps.source_version.cache_clear()
+    assert codedeps.source_version(modules, tree) != changed
 
 
 def test_comments_docstrings_and_layout_do_not_move_a_version_and_code_does(tree):

@@ -75,3 +75,17 @@ def tiny_scene(
         multiview=True,
         stand_in="unit-test scene",
     )
+
+
+def projection_scene(n: int = 300, seed: int = 1):
+    """Gaussians around a rotated camera: behind it, far off-axis, off-screen, anisotropic."""
+    gen = torch.Generator().manual_seed(seed)
+    means = torch.randn(n, 3, generator=gen, dtype=torch.float64) * torch.tensor([3.0, 3.0, 3.0])
+    quats = torch.randn(n, 4, generator=gen, dtype=torch.float64)  # not normalised on purpose
+    scales = torch.exp(torch.randn(n, 3, generator=gen, dtype=torch.float64) * 1.2 - 2.5)
+    opacities = torch.rand(n, generator=gen, dtype=torch.float64)
+    w2c = look_at(torch.tensor([0.3, -6.0, 0.5]), torch.tensor([0.0, 0.0, 0.2]))
+    cam = Camera(
+        K=intrinsics(50.0, 46.0, 27.0, 19.0), world_to_camera=w2c, width=60, height=40, near=0.5, far=8.0
+    )
+    return means, quats, scales, opacities, cam

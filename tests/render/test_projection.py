@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from helpers.scenes import projection_scene
 
 from moegs import Camera
 from moegs.camera import intrinsics, look_at
@@ -72,23 +73,9 @@ def project_one(mean, quat, scale, opacity, cam: Camera, eps2d, antialiased):
     return mean2d, np.array([inv[0, 0], inv[0, 1], inv[1, 1]]), opacity, p[2], radius
 
 
-def _scene(n=300, seed=1):
-    """Gaussians around a rotated camera: behind it, far off-axis, off-screen, anisotropic."""
-    gen = torch.Generator().manual_seed(seed)
-    means = torch.randn(n, 3, generator=gen, dtype=torch.float64) * torch.tensor([3.0, 3.0, 3.0])
-    quats = torch.randn(n, 4, generator=gen, dtype=torch.float64)  # not normalised on purpose
-    scales = torch.exp(torch.randn(n, 3, generator=gen, dtype=torch.float64) * 1.2 - 2.5)
-    opacities = torch.rand(n, generator=gen, dtype=torch.float64)
-    w2c = look_at(torch.tensor([0.3, -6.0, 0.5]), torch.tensor([0.0, 0.0, 0.2]))
-    cam = Camera(
-        K=intrinsics(50.0, 46.0, 27.0, 19.0), world_to_camera=w2c, width=60, height=40, near=0.5, far=8.0
-    )
-    return means, quats, scales, opacities, cam
-
-
 @pytest.mark.parametrize("antialiased", [False, True])
 def test_project_matches_per_gaussian_float64_reference(antialiased):
-    means, quats, scales, opacities, cam = _scene()
+    means, quats, scales, opacities, cam = projection_scene()
     eps2d = DILATION_ANTIALIASED if antialiased else BLUR_3DGS
     proj = project(means, covariance_3d(quats, scales), opacities, cam, eps2d=eps2d, antialiased=antialiased)
     kinds = {"culled": 0, "kept": 0}
