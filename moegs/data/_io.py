@@ -174,13 +174,21 @@ def background_color(background: str | Tensor) -> Tensor:
     return torch.tensor(BACKGROUNDS[background])
 
 
-def to_rgb(arr: np.ndarray, background: Tensor) -> Tensor:
-    """uint8 ``[H, W, 3|4]`` -> float32 ``[H, W, 3]`` in [0, 1]; RGBA is composited on ``background [3]``."""
-    img = torch.from_numpy(np.ascontiguousarray(arr)).to(torch.float32) / 255.0
-    if img.shape[-1] == 4:
-        alpha = img[..., 3:]
-        img = img[..., :3] * alpha + background.to(torch.float32) * (1.0 - alpha)
-    return img
+def to_rgb8(arr: np.ndarray, background: Tensor) -> np.ndarray:
+    """uint8 ``[H, W, 3|4]`` -> uint8 ``[H, W, 3]``: RGB as it is; RGBA composited on ``background [3]``.
+
+    The composite is quantised to 8 bits by truncation, in float64, as the dynamic-GS loaders of D-NeRF
+    do (``np.array(arr * 255.0, dtype=np.byte)`` after ``rgb * a + bg * (1 - a)``: 4DGaussians
+    ``scene/dataset_readers.py:285-287``, DeformableGS ``scene/dataset_readers.py:249-255``, Grid4D
+    ``scene/dataset_readers.py:250-256``), so the ground truth is the 8-bit image they train on.
+    """
+    if arr.shape[-1] != 4:
+        return np.ascontiguousarray(arr[..., :3])
+    norm = arr.astype(np.float64) / 255.0
+    alpha = norm[..., 3:4]
+    bg = background.to(torch.float64).numpy()
+    composite = norm[..., :3] * alpha + bg * (1.0 - alpha)
+    return (composite * 255.0).astype(np.int64).clip(0, 255).astype(np.uint8)
 
 
 def resize(img: Tensor, size: tuple[int, int], method: str = "bicubic") -> Tensor:
@@ -217,20 +225,18 @@ def load_rgb(
 ) -> Tensor:
     """Read ``path``, check its native size, composite on ``background``, resize to ``size``.
 
-    Returns ``[H, W, 3]`` float32 in [0, 1]. RGBA is composited at native resolution and the
-    composite is resized (linear order; the NeRF code resizes RGBA first, a sub-1e-3 difference).
-    Results are kept on disk between processes (``moegs.data.decoded``).
+    Returns ``[H, W, 3]`` uint8 (``View.image`` gives it as float32 in [0, 1]). RGBA is composited and
+    quantised at native resolution (``to_rgb8``) and the 8-bit composite is resized with PIL, as the GS
+    loaders do (3DGS ``PILtoTorch``). Results are kept on disk between processes (``moegs.data.decoded``).
     """
 
     def load() -> Tensor:
         arr = read_image(path)
         check_size(arr, native, path)
-        if arr.shape[-1] == 4:
-            return resize(to_rgb(arr, background), size, method)
-        return to_rgb(resize_uint8(arr, size, method), background)
+        return torch.from_numpy(resize_uint8(to_rgb8(arr, background), size, method))
 
     args = (tuple(native), tuple(size), tuple(background.tolist()), method)
-    return decoded.cached("rgb", path, args, (size[1], size[0], 3), load)
+    return decoded.cached("rgb8", path, args, (size[1], size[0], 3), load, torch.uint8)
 
 
 def load_alpha_mask(path: Path, native: tuple[int, int], size: tuple[int, int], method: str) -> Tensor:

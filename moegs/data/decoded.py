@@ -3,7 +3,8 @@
 Every training run of a scene decodes, composites and resizes the same images again (a D-NeRF view at
 800x800 -> 100x100: about 28 ms, some 4 s per quick run of ``mutant``, up to a third of it). The first
 run stores each result under ``cache_root()/decoded/`` and later runs read it back (well under a
-millisecond). It is exact: the stored float32 array is the loader's own result, written atomically.
+millisecond). It is exact: the stored array (uint8 images, float32 masks) is the loader's own result,
+written atomically.
 
 Entries are keyed by the source files' resolved paths, sizes and modification times and by every
 loading argument. Initial point clouds computed from images (``cached_points``: Panoptic's
@@ -43,14 +44,13 @@ def _entry(kind: str, sources: Sequence[Path], args: tuple, suffix: str = ".npy"
     return cache_root() / "decoded" / digest[:2] / f"{digest}{suffix}"
 
 
-def _read(path: Path, shape: tuple[int, ...]) -> Tensor | None:
+def _read(path: Path, shape: tuple[int, ...], dtype: torch.dtype) -> Tensor | None:
     try:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError):
         return None  # missing, truncated or damaged: decode again and overwrite
-    if arr.shape != shape or arr.dtype != np.float32:
-        return None
-    return torch.from_numpy(arr)
+    value = torch.from_numpy(arr)
+    return value if value.shape == shape and value.dtype == dtype else None
 
 
 def _write(path: Path, save: Callable[[BinaryIO], None]) -> None:
@@ -66,20 +66,25 @@ def _write(path: Path, save: Callable[[BinaryIO], None]) -> None:
 
 
 def cached(
-    kind: str, source: Path, args: tuple, shape: tuple[int, ...], load: Callable[[], Tensor]
+    kind: str,
+    source: Path,
+    args: tuple,
+    shape: tuple[int, ...],
+    load: Callable[[], Tensor],
+    dtype: torch.dtype = torch.float32,
 ) -> Tensor:
-    """``load()`` (a float32 tensor of ``shape`` decoded from ``source``), read from the disk cache when an
-    entry for ``(kind, source, args)`` exists, else computed and stored."""
+    """``load()`` (a tensor of ``shape`` and ``dtype`` decoded from ``source``), read from the disk cache
+    when an entry for ``(kind, source, args)`` exists, else computed and stored."""
     if not enabled() or shape[0] * shape[1] > MAX_PIXELS:
         return load()
     try:
         entry = _entry(kind, [source], args)
     except OSError:
         return load()  # a missing source: the loader's own message names it
-    value = _read(entry, shape)
+    value = _read(entry, shape, dtype)
     if value is None:
         value = load()
-        if value.dtype == torch.float32 and tuple(value.shape) == shape:
+        if value.dtype == dtype and tuple(value.shape) == shape:
             _write(entry, partial(np.save, arr=value.contiguous().numpy()))
     return value
 

@@ -9,7 +9,8 @@ Conventions chosen (see ``specs/peers_and_style.md`` C.2):
 - Resolution: native 800x800 (the dynamic-GS protocol of 4DGaussians, DeformableGS, Grid4D).
   ``resolution_scale=0.5`` gives the NeRF-era 400x400 protocol (box filter = ``cv2.INTER_AREA``).
 - Background: white by default (4DGaussians, nerfstudio, the original D-NeRF); ``"black"`` for the
-  DeformableGS/Grid4D setting. RGBA is composited on it at native resolution before resizing.
+  DeformableGS/Grid4D setting. RGBA is composited on it at native resolution and quantised to 8 bits by
+  truncation before resizing, as 4DGaussians, DeformableGS and Grid4D do (``_io.to_rgb8``).
 - Poses: ``transform_matrix`` is a Blender/OpenGL camera-to-world (x right, y up, z back); its y and z
   axes are flipped to OpenCV and inverted to world-to-camera. ``fx = fy = 0.5 W / tan(camera_angle_x / 2)``,
   principal point at the image centre.

@@ -48,7 +48,7 @@ from moegs.data._io import (
     normalised_time,
     points_bbox,
     read_colmap,
-    to_rgb,
+    to_rgb8,
 )
 from moegs.data._video import FrameCache, VideoReader
 from moegs.data.scene import ImageCache, PointCloud, Scene, View
@@ -112,7 +112,7 @@ def _frame_dir(root: Path, cam: str) -> Path | None:
 
 
 def _video_image(reader: VideoReader, index: int, bg: Tensor) -> Tensor:
-    return to_rgb(reader.frame(index), bg)
+    return torch.from_numpy(to_rgb8(reader.frame(index), bg))
 
 
 # -- loader -------------------------------------------------------------------------------------------

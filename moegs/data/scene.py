@@ -23,10 +23,10 @@ def tensor_bytes(value: Tensor) -> int:
 
 
 class ImageCache:
-    """LRU cache of decoded images, shared by all views of a scene, bounded by ``max_bytes`` (default
-    1 GiB: every training view of the quick and standard presets stays resident) and optionally by
-    ``max_items``; 0 for either keeps nothing. ``nbytes`` sizes a value (other values than one tensor:
-    e.g. a frozen expert's rasterizer inputs, ``moegs.moe.train``)."""
+    """LRU cache of decoded images (8-bit ones as uint8), shared by all views of a scene, bounded by
+    ``max_bytes`` (default 1 GiB: every training view of the quick and standard presets stays resident)
+    and optionally by ``max_items``; 0 for either keeps nothing. ``nbytes`` sizes a value (other values
+    than one tensor: e.g. a frozen expert's rasterizer inputs, ``moegs.moe.train``)."""
 
     def __init__(
         self,
@@ -67,8 +67,9 @@ class View:
 
     Attributes:
         camera: the camera (carries ``time``, ``frame`` and ``camera_id``).
-        load_image: returns the image ``[H, W, 3]`` float32 in [0, 1] at the camera's resolution,
-            already composited on the scene background.
+        load_image: returns the image ``[H, W, 3]`` at the camera's resolution, already composited on
+            the scene background: uint8 as decoded (real data) or float32 in [0, 1] (rendered stand-ins).
+            The scene's cache keeps what it returns, so 8-bit images stay resident at a byte a value.
         load_mask: optional, returns a mask ``[H, W]`` float32 in [0, 1] (e.g. dynamic region).
         key: unique identifier used by the cache and in per-view results.
         load_regions: optional, returns named masks ``{name: [H, W]}`` float32 in {0, 1}, the same names for
@@ -85,9 +86,8 @@ class View:
 
     def image(self) -> Tensor:
         """``[H, W, 3]`` float32 in [0, 1]."""
-        if self.cache is None:
-            return self.load_image()
-        return self.cache.get(self.key, self.load_image)
+        image = self.load_image() if self.cache is None else self.cache.get(self.key, self.load_image)
+        return image.to(torch.float32) / 255.0 if image.dtype == torch.uint8 else image
 
     def mask(self) -> Tensor | None:
         return None if self.load_mask is None else self.load_mask()

@@ -70,9 +70,31 @@ def test_damaged_entry_is_decoded_again_and_replaced(cache, rgba):
     (entry,) = _entries(cache)
     entry.write_bytes(entry.read_bytes()[:100])  # truncated
     torch.testing.assert_close(_io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic"), good, rtol=0, atol=0)
-    np.save(entry, np.zeros((3, 3), np.float32))  # wrong shape
+    np.save(entry, np.zeros((3, 3), np.uint8))  # wrong shape
     torch.testing.assert_close(_io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic"), good, rtol=0, atol=0)
+    np.save(entry, np.zeros((32, 24, 3), np.float32))  # wrong dtype (a float32 image of an older library)
+    torch.testing.assert_close(_io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic"), good, rtol=0, atol=0)
+    assert np.load(entry).dtype == np.uint8
     assert np.load(entry).shape == (32, 24, 3)
+
+
+def test_rgba_ground_truth_is_the_truncated_8bit_composite_of_the_gs_loaders(rgba):
+    """4DGaussians / DeformableGS / Grid4D composite D-NeRF's RGBA in float64 and cast ``arr * 255.0`` to
+    ``np.byte`` (read back as RGB bytes): truncation, not rounding. The composite is then resized in
+    8 bits."""
+    arr = np.asarray(Image.open(rgba))
+    for bg in (WHITE, torch.zeros(3), torch.tensor([0.2, 0.5, 0.9])):
+        norm = arr / 255.0
+        composite = norm[..., :3] * norm[..., 3:] + bg.double().numpy() * (1 - norm[..., 3:])
+        with np.errstate(invalid="ignore"):  # numpy warns on the out-of-range int8 cast the loaders rely on
+            theirs = np.array(composite * 255.0, dtype=np.byte).view(np.uint8)
+        np.testing.assert_array_equal(_io.to_rgb8(arr, bg), theirs)
+    rgb = arr[..., :3].copy()
+    np.testing.assert_array_equal(_io.to_rgb8(rgb, WHITE), rgb)  # RGB passes through
+    image = _io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic")
+    assert image.dtype == torch.uint8 and image.shape == (32, 24, 3)
+    resized = _io.resize_uint8(_io.to_rgb8(arr, WHITE), (24, 32), "bicubic")
+    np.testing.assert_array_equal(image.numpy(), resized)
 
 
 def test_large_images_and_missing_files_bypass_the_cache(cache, rgba, monkeypatch):
