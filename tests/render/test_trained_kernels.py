@@ -13,11 +13,12 @@ from __future__ import annotations
 import pytest
 from helpers.training import trained_expert
 
+from moegs.experts import list_experts
 from moegs.train.evaluate import evaluate
 
 pytestmark = [pytest.mark.slow, pytest.mark.realdata]
 
-EXPERTS = ("static", "deformable", "grid4d", "fourdgs", "ed3dgs", "stg", "ex4dgs", "mcmc")
+EXPERTS = [s.name for s in list_experts() if not s.composite and s.plugin is None]  # every built-in one
 MEAN_TOLERANCE_DB = 1e-5
 VIEW_TOLERANCE_DB = 1e-4
 
