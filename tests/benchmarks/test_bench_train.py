@@ -13,11 +13,12 @@ import math
 
 import pytest
 import torch
+from helpers.training import builtin_experts
 
 pytestmark = pytest.mark.benchmark
 
 SCENE = "dnerf:mutant"
-EXPERTS = ("static", "deformable", "grid4d", "fourdgs", "ed3dgs", "stg", "ex4dgs", "mcmc")
+EXPERTS = builtin_experts()
 STEPS = 60
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 import pytest
+from helpers.training import builtin_experts
 
 from moegs.experts import get_expert_class
 from moegs.recipes import changed_fields, config_for, dataset_of, get_field, with_fields
@@ -225,9 +226,7 @@ def test_background_is_the_originals(expert, scene, background):
     assert recipe.background == background and recipe.load_kwargs["background"] == background
 
 
-@pytest.mark.parametrize(
-    "expert", ["deformable", "grid4d", "fourdgs", "ed3dgs", "stg", "ex4dgs", "static", "mcmc"]
-)
+@pytest.mark.parametrize("expert", builtin_experts())
 @pytest.mark.parametrize(
     "scene", ["dnerf:mutant", "n3v:coffee_martini", "technicolor:train", "hypernerf:chicken"]
 )

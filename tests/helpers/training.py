@@ -18,10 +18,16 @@ from pathlib import Path
 import pytest
 
 from moegs.data.scene import Scene
+from moegs.experts import list_experts
 from moegs.experts.base import Expert
 from moegs.paths import cache_root
 
 _PACKAGE = Path(__file__).resolve().parents[2] / "moegs"
+
+
+def builtin_experts() -> list[str]:
+    """Registry names of the built-in single experts (no composite, no plugin), sorted."""
+    return [s.name for s in list_experts() if not s.composite and s.plugin is None]
 
 
 @dataclass

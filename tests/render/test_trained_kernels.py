@@ -11,14 +11,13 @@ on the mean and 1.9e-5 dB on one view (a standard 4DGaussians model of 55k Gauss
 from __future__ import annotations
 
 import pytest
-from helpers.training import trained_expert
+from helpers.training import builtin_experts, trained_expert
 
-from moegs.experts import list_experts
 from moegs.train.evaluate import evaluate
 
 pytestmark = [pytest.mark.slow, pytest.mark.realdata]
 
-EXPERTS = [s.name for s in list_experts() if not s.composite and s.plugin is None]  # every built-in one
+EXPERTS = builtin_experts()
 MEAN_TOLERANCE_DB = 1e-5
 VIEW_TOLERANCE_DB = 1e-4
 
