@@ -27,6 +27,8 @@ class ValuesView(Protocol):
 
     def columns(self, selector: str | Sequence[str]) -> list[str]: ...
 
+    def metrics_of(self, column: str) -> list[str]: ...
+
 
 @dataclass(frozen=True)
 class ClaimResult:
@@ -46,6 +48,12 @@ def _is_better(x: float, y: float, metric_name: str, strict: bool, margin: float
     if not metric(metric_name).higher_is_better:
         x, y = -x, -y
     return x - y > margin if strict else x - y >= -margin
+
+
+def _at(v: ValuesView, column: str, metric_name: str) -> str:
+    """A value's place in a detail: the column, and the metric where the column prints other ones (a
+    dynamic-region twin compares "PSNR dynamic" under a table's PSNR columns)."""
+    return column if metric_name in v.metrics_of(column) else f"{column} [{metric_name}]"
 
 
 def noise_of(v: ValuesView, metric_name: str) -> float:
@@ -86,7 +94,7 @@ def better(
             y = v.get(o, col, metric)
             if x is None or y is None:
                 continue
-            checked.append(f"{col}: {_fmt(x)} vs {o} {_fmt(y)}")
+            checked.append(f"{_at(v, col, metric)}: {_fmt(x)} vs {o} {_fmt(y)}")
             statuses.append(_compare(x, y, metric, strict, margin, noise))
     if not checked:
         return ClaimResult(NA, f"no column where {a} and {others} both have {metric}")
@@ -142,7 +150,7 @@ def monotone(
         vals = [(c, x) for c, x in vals if x is not None]
         for (c0, x0), (c1, x1) in zip(vals, vals[1:], strict=False):
             seen += 1
-            step = f"{row}: {c1} {_fmt(x1)} > {c0} {_fmt(x0)}"
+            step = f"{row}: {_at(v, c1, metric)} {_fmt(x1)} > {_at(v, c0, metric)} {_fmt(x0)}"
             if _is_better(x1, x0, metric, strict=True, margin=tolerance + noise):
                 bad.append(step)
             elif _is_better(x1, x0, metric, strict=True, margin=tolerance):
@@ -172,10 +180,11 @@ def within(
         if x is None or y is None:
             continue
         checked += 1
+        gap = f"{_at(v, col, metric)}: |{_fmt(x)} - {_fmt(y)}| > {tolerance}"
         if abs(x - y) > tolerance + noise:
-            bad.append(f"{col}: |{_fmt(x)} - {_fmt(y)}| > {tolerance}")
+            bad.append(gap)
         elif abs(x - y) > tolerance:
-            close.append(f"{col}: |{_fmt(x)} - {_fmt(y)}| > {tolerance} by less than the seed spread")
+            close.append(f"{gap} by less than the seed spread")
     if not checked:
         return ClaimResult(NA, f"{a} / {b} have no common {metric}")
     if bad:
@@ -237,7 +246,7 @@ def at_least(
                 continue
             seen += 1
             if x < threshold:
-                bad.append(f"{row} {col}: {_fmt(x)} < {threshold}")
+                bad.append(f"{row} {_at(v, col, metric)}: {_fmt(x)} < {threshold}")
     if not seen:
         return ClaimResult(NA, f"{metric} not computed")
     return ClaimResult(FAILED if bad else HELD, "; ".join(bad) or f"{seen} value(s) >= {threshold}")

@@ -312,6 +312,10 @@ class PaperValues:
             return list(self.scene_columns)
         return list(selector)
 
+    def metrics_of(self, column: str) -> list[str]:
+        """Metrics the paper prints under a column."""
+        return list(dict.fromkeys(m for _, c, m in self._values if c == column))
+
     def printed(self, row: str, column: str, metric_name: str) -> str | None:
         if self.table is None:
             return None

@@ -25,6 +25,9 @@ class View:
     def columns(self, selector):
         return ["@mean"] if selector == "@mean" else list(selector)
 
+    def metrics_of(self, column):
+        return list(dict.fromkeys(m for _, c, m in self.values if c == column))
+
 
 def psnr(**rows) -> dict:
     return {(r, "@mean", "PSNR"): v for r, v in rows.items()}
@@ -301,3 +304,30 @@ def test_tables_of_scenes_without_a_stability_run_average_several_seeds_and_judg
     again.write_text(json.dumps(other_cells))
     assert run_noise(plan, elsewhere, again)["scenes"] == seed_noise(plan, elsewhere)["scenes"]
     assert run_noise(plan, ws, summary)["scenes"] == seed_noise(plan, ws)["scenes"]
+
+
+class PrintedView(View):
+    """A view whose columns print one metric each, as a table whose columns are metrics does."""
+
+    def __init__(self, values: dict, printed: dict[str, str]) -> None:
+        super().__init__(values)
+        self.printed = printed
+
+    def metrics_of(self, column):
+        return [self.printed[column]]
+
+
+def test_details_name_the_metric_where_the_column_prints_another():
+    """A dynamic-region twin compares "PSNR dynamic" under Table X's "PSNR (dB)" column: its detail must
+    not read as full-image PSNR."""
+    col = "PSNR (dB)"
+    v = PrintedView(
+        {("a", col, "PSNR"): 30.0, ("b", col, "PSNR"): 28.3, ("a", col, "PSNR dynamic"): 24.4,
+         ("b", col, "PSNR dynamic"): 21.7},
+        {col: "PSNR"},
+    )  # fmt: skip
+    twin = better(v, "a", "b", metric="PSNR dynamic", columns=[col])
+    assert twin.status == HELD and "PSNR (dB) [PSNR dynamic]: 24.4 vs b 21.7" in twin.detail
+    plain = better(v, "a", "b", columns=[col])
+    assert "PSNR (dB): 30 vs b 28.3" in plain.detail and "[" not in plain.detail
+    assert "PSNR (dB) [PSNR dynamic]: |24.4 - 21.7|" in within(v, "a", "b", 1.0, "PSNR dynamic", [col]).detail

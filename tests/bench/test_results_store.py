@@ -225,6 +225,9 @@ class _View:
     def columns(self, selector):
         return ["A", "B"] if selector == "@scenes" else (["avg"] if selector == "@mean" else list(selector))
 
+    def metrics_of(self, column):
+        return list(dict.fromkeys(m for _, c, m in self.data if c == column))
+
 
 def test_claim_checks():
     v = _View(
