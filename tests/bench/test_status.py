@@ -52,7 +52,10 @@ def test_counts_floors_and_routing():
     quick = _summary(
         ["held", "failed", "within noise", "within noise"],
         experts=[
-            _expert("stg", 26.0, 0.7),
+            {
+                **_expert("stg", 26.0, 0.7),
+                "psnr_regimes": {"transient": 15.99, "nonrigid": 28.0, "rigid_smooth": 28.97},
+            },
             _expert("ed3dgs", 18.0, 0.04),
             _expert("grid4d", 29.0),  # not one of the floor experts, but the best
             {**_expert("stg", 40.0), "dataset": "technicolor"},  # another recipe: not the floors' row
@@ -71,10 +74,10 @@ def test_counts_floors_and_routing():
     assert claim_counts(quick) == {"held": 1, "failed": 1, "within noise": 2}
     rows = motion_rows(quick)
     assert rows == [
-        "| Grid4D | 29.00 | 0.50 | – |",
-        "| STG | 26.00 | 0.70 | ≥ 25: met |",
-        "| E-D3DGS | 18.00 | 0.04 | ≥ 25: missed |",
-        "| best | 29.00 | | ≥ 28: met |",
+        "| Grid4D | 29.00 | 0.50 | – | – |",
+        "| STG | 26.00 | 0.70 | ≥ 25: met | rigid_smooth 29.0, nonrigid 28.0, transient 16.0 |",
+        "| E-D3DGS | 18.00 | 0.04 | ≥ 25: missed | – |",
+        "| best | 29.00 | | ≥ 28: met | |",
     ]
     cell = routing_cell(quick)
     assert "coherence 0.55 (≥ 0.6: missed)" in cell and "STG 75% / 10%" in cell
