@@ -10,8 +10,9 @@ Two disjoint sets of Gaussians, kept here in one set of per-Gaussian tensors wit
 
 Time is the integer frame index (``(t - t_first) / frame_step`` of the normalised scene time). Training
 starts static on the first ``start_duration`` frames and grows by ``I`` frames every
-``grow_every`` iterations; after each growth (and every ``extract_every`` iterations) the static
-Gaussians that drift most relative to their distance to the camera become dynamic. A per-Gaussian
+``grow_every`` iterations; after each growth, ``make_dynamic_interval`` iterations later, and every
+``extract_every`` iterations until the densification ends, the static Gaussians that drift most
+relative to their distance to the camera become dynamic. A per-Gaussian
 error is accumulated by back-tracking the per-pixel L1 / SSIM maps through the splatting weights
 (Ex4DGS's "flow" trick: a zero per-Gaussian probe splatted as extra channels whose image gradient is
 replaced by the error maps) and drives the keyframe initialisation time and error pruning. The
@@ -174,8 +175,13 @@ class Ex4DGSConfig(ExpertConfig):
     """First growth after this iteration (``extract_from_iter``)."""
     grow_every: int = 400
     """Iterations between growths by ``interval`` frames (``progressive_growing_steps``, N3V 400)."""
+    make_dynamic_interval: int = 100
+    """A second conversion this many iterations after each growth (``make_dynamic_interval``: N3V and every
+    Technicolor config 100, ``configs/N3V/n3v_base.json:27``; ``train.py:257-259`` marks it while the
+    growth's ``need_extract`` holds, and the ``~need_extract`` of ``:262`` is always true)."""
     extract_every: int = 3980
-    """Extra static-to-dynamic conversions at the worst time bin (``extracton_interval``, N3V 3980)."""
+    """Extra static-to-dynamic conversions at the worst time bin (``extracton_interval``, N3V 3980), only
+    while densifying (inside ``if iteration < densify_until_iter``, ``train.py:203, 228``)."""
     extract_percentile: float = 0.98
     """Quantile of the drift score above which visible static Gaussians become dynamic (Train 0.99)."""
     static_reg: float = 1e-4
@@ -315,6 +321,7 @@ class Ex4DGSConfig(ExpertConfig):
             "max_init_points": QUICK_POINTS,
             "grow_from": 30,
             "grow_every": 30,  # 500/400 -> 30/30 so 150 D-NeRF frames are reached at ~450
+            "make_dynamic_interval": 8,  # 100 of every 400 -> 8 of every 30
             "extract_every": 300,
             "reg_from": 30,
             "means_lr_max_steps": QUICK_ITERATIONS,
@@ -501,6 +508,7 @@ class Ex4DGSExpert(Expert):
             config.random_background if config.random_background is not None else multiview
         )
         self.register_buffer("duration", torch.tensor(float(min(config.start_duration, num_frames))))
+        self.register_buffer("last_growth", torch.tensor(-1))
         self.register_buffer("bin_errors", torch.zeros(math.ceil(num_frames / config.interval), 2))
         self.active_sh_degree = 0
         self._probe: tuple[Tensor, Tensor, float] | None = None  # (probe image, per-Gaussian probe, frame)
@@ -624,7 +632,7 @@ class Ex4DGSExpert(Expert):
             ssim_pix = ssim_map(rgb.clamp(0, 1), target).mean(-1)
             acc = out.alpha.clamp_min(1e-4)
             weights = torch.stack([torch.ones_like(acc), l1_map, ssim_pix], dim=-1) / acc[..., None]
-            b = min(int(frame // self.config.interval), self.bin_errors.shape[0] - 1)
+            b = min(round(frame) // self.config.interval, self.bin_errors.shape[0] - 1)  # frame k - 1e-6 is k
             self.bin_errors[b] += torch.stack([l1_map.mean(), torch.ones(())])
         probe_image.register_hook(lambda grad: weights)
         radii = out.info.get("radii")
@@ -654,18 +662,29 @@ class Ex4DGSExpert(Expert):
         self, step: int, views: list[View], batch_size: int, generator: torch.Generator
     ) -> list[int]:
         """Progressive schedule: views of frames below the current duration; grow by ``interval`` frames every
-        ``grow_every`` iterations (then convert with a view of the newest frames), and convert every
-        ``extract_every`` iterations with a view of the worst time bin."""
+        ``grow_every`` iterations and convert with a view of the newest frames, then and again
+        ``make_dynamic_interval`` iterations later; while densifying, convert every ``extract_every``
+        iterations with a view of the worst time bin."""
         c = self.config
         grow = step > c.grow_from and step % c.grow_every == 0 and int(self.duration) < self.num_frames
         if grow:
             self._grow(min(int(self.duration) + c.interval, self.num_frames))
-        frames = torch.tensor([self.frame_index(v.camera.time) for v in views])
-        if grow:
+            self.last_growth.fill_(step)
+        newest = grow or (
+            int(self.last_growth) >= 0 and step == int(self.last_growth) + c.make_dynamic_interval
+        )
+        frames = torch.tensor([round(self.frame_index(v.camera.time)) for v in views])  # views sit on frames
+        if newest:
             pool = ((frames >= int(self.duration) - c.interval) & (frames < self.duration)).nonzero(
                 as_tuple=True
             )[0]
-        elif c.extract_every and step % c.extract_every == 0 and self.bin_errors[:, 1].any():
+        elif (
+            c.extract_every
+            and step > c.grow_from
+            and step % c.extract_every == 0
+            and step < getattr(c.strategy, "densify_until", NEVER)  # an ADC strategy's window
+            and self.bin_errors[:, 1].any()
+        ):
             mean = self.bin_errors[:, 0] / self.bin_errors[:, 1].clamp_min(1)
             worst = int(mean.argmax())
             self.bin_errors[worst] = 0

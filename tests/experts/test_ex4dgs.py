@@ -129,9 +129,25 @@ def test_progressive_schedule_grows_and_converts_with_newest_frames():
     g = torch.Generator().manual_seed(0)
     for step in range(1, 5):
         (i,) = expert.select_views(step, scene.train, 1, g)
-        assert expert.frame_index(scene.train[i].camera.time) < 10
+        assert round(expert.frame_index(scene.train[i].camera.time)) < 10  # frame 10 reads 9.999998
     (i,) = expert.select_views(5, scene.train, 1, g)  # growth to 20 frames, view from frames 10..19
     assert float(expert.duration) == 20 and 10 <= round(expert.frame_index(scene.train[i].camera.time)) < 20
+
+
+def test_second_conversion_after_each_growth_and_interval_extraction_only_while_densifying():
+    """``train.py``: a growth converts with a view of the newest frames, and so does the step
+    ``make_dynamic_interval`` later (``:257-259``); the ``extracton_interval`` conversion runs only before
+    ``densify_until_iter`` (``:203, 228``). A conversion trains on its one view, other steps on a batch."""
+    expert, scene = _expert(num_frames=30, start_duration=10, grow_from=0, grow_every=5, interval=10)
+    expert.config.make_dynamic_interval, expert.config.extract_every = 2, 4
+    expert.config.strategy.densify_until = 6
+    expert.bin_errors[1] = torch.tensor([1.0, 1.0])  # frames 10..19 have errors
+    g = torch.Generator().manual_seed(0)
+    picks = {step: expert.select_views(step, scene.train, 3, g) for step in range(1, 11)}
+    converted = [step for step, p in picks.items() if len(p) == 1]
+    assert converted == [4, 5, 7, 10]  # extraction at 4 (< 6, not at 8), growths at 5 and 10, 5 + 2
+    for step in (5, 7):
+        assert 10 <= round(expert.frame_index(scene.train[picks[step][0]].camera.time)) < 20
 
 
 def test_backtracking_of_one_gaussian_is_its_mean_pixel_error():
