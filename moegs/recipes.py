@@ -30,6 +30,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from moegs.data import canonical_scene
 from moegs.experts.base import DatasetPreset
 from moegs.io.config import changed_fields, get_field, with_fields
 
@@ -167,7 +168,7 @@ def config_for(
         raise ValueError(f"unknown recipe preset {preset!r}; valid: {', '.join(PRESETS)}")
     cls = get_expert_class(expert).config_class
     dataset = dataset or dataset_of(scene)
-    scene_name = scene.partition(":")[2]
+    scene_name = canonical_scene(scene).partition(":")[2]  # overrides are keyed by the suite's names
     base = cls.dataset_preset(dataset)
     config = cls.from_preset(base.preset)
     scene_overrides = dict(cls.SCENE_OVERRIDES.get(f"{dataset}:{scene_name}", {}))

@@ -58,17 +58,19 @@ _ALIASES = {
         "chicken": ["vrig-chicken", "vrig_chicken"],
         "3dprinter": ["vrig-3dprinter", "vrig_3dprinter"],
         "broom": ["broom2", "vrig-broom", "vrig_broom"],
-        "peel-banana": ["vrig-peel-banana", "vrig_peel-banana", "peel_banana"],
-        "banana": ["vrig-peel-banana", "peel-banana"],
+        "peel-banana": ["vrig-peel-banana", "vrig_peel-banana", "peel_banana", "banana"],
     },
-    "n3v": {"flame_salmon": ["flame_salmon_1"], "coffee": ["coffee_martini"]},
+    "n3v": {"flame_salmon": ["flame_salmon_1"], "coffee_martini": ["coffee"]},
 }
+"""The suite's scene name (what recipes and tables use) -> the other spellings a scene goes by (the
+originals' folder names); each is accepted as a name and looked for as a folder."""
 
 __all__ = [
     "ImageCache",
     "PointCloud",
     "Scene",
     "View",
+    "canonical_scene",
     "dataset_module",
     "list_datasets",
     "list_scenes",
@@ -111,6 +113,16 @@ def parse_scene_name(name: str) -> tuple[str, str]:
     return dataset, scene.strip()
 
 
+def canonical_scene(name: str) -> str:
+    """The suite's name of a scene, ``<dataset>:<scene>``, for any spelling the loader accepts:
+    ``n3v:flame_salmon_1`` -> ``n3v:flame_salmon`` (scene overrides and tables use it)."""
+    dataset, scene = parse_scene_name(name)
+    for canonical, others in _ALIASES.get(dataset, {}).items():
+        if scene.lower() in (canonical, *others):
+            return f"{dataset}:{canonical}"
+    return f"{dataset}:{scene}"
+
+
 def _is_scene(folder: Path, markers: tuple[str, ...]) -> bool:
     return folder.is_dir() and any(any(folder.glob(m)) for m in markers)
 
@@ -138,7 +150,8 @@ def resolve_scene_path(name: str) -> Path:
             f"{name}: no data root. Set MOEGS_DATA to a folder holding {dataset}/{scene}/ ({layout})"
         )
     base = root / dataset
-    wanted = [scene, *_ALIASES.get(dataset, {}).get(scene.lower(), [])]
+    canonical = canonical_scene(name).partition(":")[2]
+    wanted = list(dict.fromkeys([scene, canonical, *_ALIASES.get(dataset, {}).get(canonical, [])]))
     existing = {p.name.lower(): p for p in base.iterdir()} if base.is_dir() else {}
     for candidate in wanted:
         folder = existing.get(candidate.lower())

@@ -241,6 +241,20 @@ def test_quick_differs_only_in_its_named_fields(expert, scene):
     assert quick.config.train.iterations < paper.config.train.iterations
 
 
+@pytest.mark.parametrize(
+    ("expert", "alias", "scene"),
+    [
+        ("grid4d", "n3v:flame_salmon_1", "n3v:flame_salmon"),  # the original N3V folder's name
+        ("stg", "n3v:coffee", "n3v:coffee_martini"),
+        ("grid4d", "hypernerf:vrig-broom", "hypernerf:broom"),
+        ("ed3dgs", "hypernerf:banana", "hypernerf:peel-banana"),
+    ],
+)
+def test_scene_overrides_follow_every_spelling_of_a_scene(expert, alias, scene):
+    expected = config_for(expert, scene).scene_overrides
+    assert expected and config_for(expert, alias).scene_overrides == expected
+
+
 def test_dataset_presets_and_adaptations():
     assert config_for("grid4d", "n3v:sear_steak").base == "paper-n3v"
     assert not config_for("grid4d", "n3v:sear_steak").adapted

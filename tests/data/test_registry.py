@@ -8,7 +8,7 @@ import types
 import helpers.data_layouts as fx
 import pytest
 
-from moegs.data import list_datasets, list_scenes, load_scene, resolve_scene_path
+from moegs.data import canonical_scene, list_datasets, list_scenes, load_scene, resolve_scene_path
 
 
 def test_list_datasets():
@@ -44,6 +44,7 @@ def test_resolution_aliases_and_kwargs(tmp_path, monkeypatch):
     assert scene.name == "dnerf:hook" and scene.dataset == "dnerf" and scene.background.sum() == 0
     assert resolve_scene_path("hypernerf:chicken").name == "vrig-chicken"
     assert resolve_scene_path("hypernerf:broom").name == "broom2"
+    assert resolve_scene_path("hypernerf:vrig_broom").name == "broom2"  # another spelling of the same scene
     assert load_scene("hypernerf:vrig-chicken", num_points=0).name == "hypernerf:vrig-chicken"
     tech = load_scene("technicolor:birthday", frames=(151, 153))
     assert tech.name == "technicolor:birthday" and tech.num_frames == 2
@@ -78,3 +79,19 @@ def test_real_scenes_by_name(mutant_root, basketball_root):
     assert load_scene("dnerf:mutant", num_points=0).summary().startswith("dnerf:mutant: 150 train / 20 test")
     pan = load_scene("panoptic:basketball", frames=(0, 10), num_points=500)
     assert pan.num_frames == 10 and len(pan.test) == 40
+
+
+@pytest.mark.parametrize(
+    ("name", "canonical"),
+    [
+        ("n3v:flame_salmon_1", "n3v:flame_salmon"),
+        ("n3v:coffee", "n3v:coffee_martini"),
+        ("n3v:Coffee_Martini", "n3v:coffee_martini"),
+        ("hypernerf:vrig-broom", "hypernerf:broom"),
+        ("hypernerf:banana", "hypernerf:peel-banana"),
+        ("n3v:sear_steak", "n3v:sear_steak"),
+        ("synthetic:n3v_like", "synthetic:n3v_like"),
+    ],
+)
+def test_canonical_scene_names(name, canonical):
+    assert canonical_scene(name) == canonical
