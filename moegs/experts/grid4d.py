@@ -200,7 +200,7 @@ class Grid4DConfig(StaticConfig):
             "lambda_spatial": 0.0,  # coffee_martini.py:28
             "lambda_temporal": 0.0,  # coffee_martini.py:32
             "train.lambda_dssim": 0.0,  # coffee_martini.py:36
-            "train.iterations": 50_000,  # coffee_martini.py:38-40 commented out: arguments/__init__.py:101
+            "train.iterations": 50_000,  # coffee_martini.py sets none: arguments/__init__.py:101
         },
         "n3v:flame_salmon": {
             "temporal_desired": (64, 64, 128),  # arguments/neu3d/flame_salmon_1.py:11
