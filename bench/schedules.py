@@ -77,6 +77,7 @@ INTERVAL_FIELDS = (
     "strategy.z_prune_every",
     "strategy.guided_gap",
     "grow_every",
+    "make_dynamic_interval",  # an offset inside the growth period, kept with it
     "extract_every",
     "adjust_every",
 )

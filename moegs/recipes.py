@@ -168,7 +168,8 @@ def config_for(
         raise ValueError(f"unknown recipe preset {preset!r}; valid: {', '.join(PRESETS)}")
     cls = get_expert_class(expert).config_class
     dataset = dataset or dataset_of(scene)
-    scene_name = canonical_scene(scene).partition(":")[2]  # overrides are keyed by the suite's names
+    # overrides are keyed by the suite's names; a bare name (a scene built by hand) is looked up as it is
+    scene_name = canonical_scene(scene).partition(":")[2] if ":" in scene else scene
     base = cls.dataset_preset(dataset)
     config = cls.from_preset(base.preset)
     scene_overrides = dict(cls.SCENE_OVERRIDES.get(f"{dataset}:{scene_name}", {}))

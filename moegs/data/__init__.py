@@ -120,7 +120,7 @@ def canonical_scene(name: str) -> str:
     for canonical, others in _ALIASES.get(dataset, {}).items():
         if scene.lower() in (canonical, *others):
             return f"{dataset}:{canonical}"
-    return f"{dataset}:{scene}"
+    return f"{dataset}:{scene.lower()}"
 
 
 def _is_scene(folder: Path, markers: tuple[str, ...]) -> bool:

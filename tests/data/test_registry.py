@@ -90,6 +90,7 @@ def test_real_scenes_by_name(mutant_root, basketball_root):
         ("hypernerf:vrig-broom", "hypernerf:broom"),
         ("hypernerf:banana", "hypernerf:peel-banana"),
         ("n3v:sear_steak", "n3v:sear_steak"),
+        ("technicolor:Birthday", "technicolor:birthday"),
         ("synthetic:n3v_like", "synthetic:n3v_like"),
     ],
 )
