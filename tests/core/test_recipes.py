@@ -33,14 +33,14 @@ ROWS = [
     ("deformable", "dnerf:mutant", "spatial_lr_scale", 5.0),  # scene/gaussian_model.py:117
     ("deformable", "dnerf:mutant", "scales_lr", 5e-3),  # arguments/__init__.py:90 x 5 (gaussian_model.py:124)
     ("deformable", "dnerf:mutant", "train.lambda_dssim", 0.2),  # arguments/__init__.py:93
-    ("deformable", "dnerf:mutant", "strategy.densify_from", 500),  # arguments/__init__.py:94
+    ("deformable", "dnerf:mutant", "strategy.densify_from", 500),  # arguments/__init__.py:96
     ("deformable", "dnerf:mutant", "strategy.reset_every", 3000),  # arguments/__init__.py:95
-    ("deformable", "dnerf:mutant", "strategy.densify_until", 15_000),  # arguments/__init__.py:96
-    ("deformable", "dnerf:mutant", "strategy.densify_every", 100),  # arguments/__init__.py:97
+    ("deformable", "dnerf:mutant", "strategy.densify_until", 15_000),  # arguments/__init__.py:97
+    ("deformable", "dnerf:mutant", "strategy.densify_every", 100),  # arguments/__init__.py:94
     ("deformable", "dnerf:mutant", "strategy.grad_threshold", 2e-4),  # branch paper: arguments/__init__.py:98
     ("deformable", "dnerf:mutant", "time_freqs", 6),  # utils/time_utils.py:65 (is_blender)
     ("deformable", "dnerf:mutant", "timenet_out", 30),  # utils/time_utils.py:72-78
-    ("deformable", "dnerf:mutant", "time_noise", False),  # train.py:54 (no AST with --is_blender)
+    ("deformable", "dnerf:mutant", "time_noise", False),  # train.py:96 (no AST with --is_blender)
     ("deformable", "dnerf:mutant", "sh_degree", 3),  # arguments/__init__.py:52
     ("deformable", "hypernerf:chicken", "train.iterations", 20_000),  # README.md:89 --iterations 20000
     ("deformable", "hypernerf:chicken", "time_noise", True),  # train.py:54,96 (AST on real data)
@@ -97,7 +97,7 @@ ROWS = [
     ("fourdgs", "dnerf:mutant", "plane_tv_weight", 1e-4),  # dnerf_default.py:27
     ("fourdgs", "dnerf:mutant", "time_smoothness_weight", 1e-2),  # dnerf_default.py:28
     ("fourdgs", "dnerf:mutant", "width", 64),  # dnerf_default.py:26
-    ("fourdgs", "dnerf:mutant", "max_init_points", 2000),  # scene/dataset_readers.py: 2000 random points
+    ("fourdgs", "dnerf:mutant", "max_init_points", 2000),  # scene/dataset_readers.py:330
     ("fourdgs", "n3v:cook_spinach", "train.iterations", 3000 + 14_000),  # arguments/dynerf/default.py:24,26
     ("fourdgs", "n3v:cook_spinach", "train.batch_size", 2),  # arguments/dynerf/cook_spinach.py:3
     ("fourdgs", "n3v:coffee_martini", "train.batch_size", 4),  # arguments/dynerf/default.py:25 (inherited)
@@ -180,7 +180,7 @@ ROWS = [
     ("ex4dgs", "n3v:cook_spinach", "near", 4.0),  # configs/N3V/n3v_base.json:16
     ("ex4dgs", "n3v:cook_spinach", "strategy.grad_threshold", 2e-4),  # configs/N3V/n3v_base.json:3
     ("ex4dgs", "n3v:cook_spinach", "strategy.dynamic_grad_threshold", 1e-4),  # configs/N3V/n3v_base.json:4
-    ("ex4dgs", "n3v:cook_spinach", "strategy.densify_every", 300),  # train.py:217
+    ("ex4dgs", "n3v:cook_spinach", "strategy.densify_every", 300),  # configs/N3V/n3v_base.json:18
     ("ex4dgs", "n3v:cook_spinach", "strategy.error_prune_from", NEVER),  # c_gaussian_model.py:830-872
     ("ex4dgs", "n3v:cook_spinach", "strategy.reset_every", NEVER),  # reset_opacity is never called
     ("ex4dgs", "n3v:cook_spinach", "motion_opacities_lr", 0.01),  # configs/N3V/n3v_base.json:22
