@@ -103,9 +103,14 @@ Ex4DGS's takes the dataset's near, 0.2 by default (``Ex4DGSConfig.near``). gspla
 ``near_plane``, 0.01 by default."""
 
 
-def clip_camera(camera: Camera, near: float | None) -> Camera:
-    """``camera`` with its near plane raised to ``near`` (unchanged when ``near`` is None or lower)."""
-    return camera if near is None or near <= camera.near else replace(camera, near=near)
+def clip_camera(camera: Camera, near: float | None, far: float | None = None) -> Camera:
+    """``camera`` with its near plane raised to ``near`` and its far plane lowered to ``far`` (each
+    unchanged when None or already tighter)."""
+    if near is not None and near > camera.near:
+        camera = replace(camera, near=near)
+    if far is not None and far < camera.far:
+        camera = replace(camera, far=far)
+    return camera
 
 
 @dataclass
@@ -211,6 +216,7 @@ class SplatInputs:
         antialiased: the 0.1-px dilation mode with opacity compensation (Ex4DGS).
         decode: splatted ``[H, W, C]`` -> RGB ``[H, W, 3]`` for this view; None = identity.
         near: the expert's near plane (``ExpertConfig.near``): the render's camera is ``clip_camera``-ed.
+        far: the expert's far plane, None for the camera's (only Ex4DGS has one, ``Ex4DGSConfig.far``).
     """
 
     frame: GaussianFrame
@@ -218,6 +224,7 @@ class SplatInputs:
     antialiased: bool = False
     decode: Callable[[Tensor], Tensor] | None = None
     near: float | None = None
+    far: float | None = None
 
     def decoded(self, image: Tensor) -> Tensor:
         return image if self.decode is None else self.decode(image)
@@ -226,13 +233,13 @@ class SplatInputs:
 def render_splat_inputs(
     inputs: SplatInputs, camera: Camera, backend: str = "auto", return_stats: bool = False
 ) -> tuple[Tensor, RenderOutput, GaussianFrame]:
-    """``(rgb [H, W, 3], RenderOutput, frame)``: rasterize ``inputs`` for ``camera`` (its near plane raised
-    to ``inputs.near``) and decode."""
+    """``(rgb [H, W, 3], RenderOutput, frame)``: rasterize ``inputs`` for ``camera`` (clipped to
+    ``inputs.near`` / ``inputs.far``) and decode."""
     from moegs.render import rasterize
 
     out = rasterize(
         inputs.frame,
-        clip_camera(camera, inputs.near),
+        clip_camera(camera, inputs.near, inputs.far),
         background=inputs.background,
         antialiased=inputs.antialiased,
         return_stats=return_stats,

@@ -226,6 +226,13 @@ class Ex4DGSConfig(ExpertConfig):
     ``near`` (``gaussian_renderer/__init__.py:55``, ``train.py:138``, ``render.py:135-138``): 0.2 by
     default (``arguments/__init__.py``), N3V 4.0 in its world frame (``configs/N3V/n3v_base.json:16``),
     Technicolor 0.01 (``configs/techni/*.json``)."""
+    far: float | None = 300.0
+    """Far plane of training and evaluation renders: the rasterizer also culls at view depth ``> max_depth``
+    (``auxiliary.h:284``), the dataset's ``far`` (``gaussian_renderer/__init__.py:56``, ``train.py:138``,
+    ``render.py:135-138``): 300 by default (``arguments/__init__.py:75``, ``configs/N3V/n3v_base.json:17``),
+    100 on Technicolor Fabien and Theater (``configs/techni/Fabien.json:14``, ``Theater.json:14``), where
+    the original's units are radius-normalised and ours are not (see ``paper_technicolor``). The
+    stand-ins, D-NeRF and Panoptic put their cameras within 5 units of the scene: 300 culls nothing there."""
     strategy: Strategy = field(default_factory=lambda: Ex4DGSStrategy())
     train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations=40_000, lambda_dssim=0.2))
     """N3V: 40k iterations, 0.8 L1 + 0.2 D-SSIM."""
@@ -262,7 +269,12 @@ class Ex4DGSConfig(ExpertConfig):
             "reg_from": 450,
             "adjust_every": 1000,
         },
-        "technicolor:fabien": {"grow_from": 1000, "motion_opacities_lr": 0.05, "static_reg": 2e-4},
+        "technicolor:fabien": {
+            "grow_from": 1000,
+            "motion_opacities_lr": 0.05,
+            "static_reg": 2e-4,
+            "far": 100.0,
+        },
         "technicolor:painter": {
             "train.iterations": 30_000,
             "strategy.densify_until": 25_000,
@@ -279,6 +291,7 @@ class Ex4DGSConfig(ExpertConfig):
             "strategy.grad_threshold": 2.5e-4,
             "strategy.dynamic_grad_threshold": 8e-5,
             "static_reg": 2e-4,
+            "far": 100.0,
         },
         "technicolor:train": {
             "strategy.densify_every": 200,
@@ -337,7 +350,6 @@ class Ex4DGSConfig(ExpertConfig):
             # 600 it) 24.53 dB with 6459 Gaussians vs 21.94 dB with 889 at every 100
             "strategy.densify_every": 50,
             "strategy.prune_from": int(QUICK_ITERATIONS * 0.3),
-            "strategy.prune_every": 150,
             # no small-radius pruning: 5 px at N3V's 1352x1014 is below one pixel at the quick resolution
             "strategy.small_radius": 0.0,
         }
@@ -376,8 +388,9 @@ class Ex4DGSStrategy(ADCStrategy):
     error_l1: float = 0.08
     error_ssim: float = 0.6
     prune_from: int = 6000
-    """``prune_invisible`` / ``prune_small`` from here every ``prune_every`` iterations (an epoch)."""
-    prune_every: int = 3000
+    """``prune_invisible`` / ``prune_small`` at the first iteration of each pass over the training views
+    that starts after this (``prune_invisible_interval``, ``arguments/__init__.py:127``; ``train.py:117-122,
+    234-238``). The expert reports the passes (``start_pass``)."""
     small_radius: float = 5.0
     interval: int = 10
     """Keyframe interval (copied from the config by the expert)."""
@@ -464,9 +477,16 @@ class Ex4DGSStrategy(ADCStrategy):
         for key in RESET_AT_DENSIFY:
             params[key].data.fill_(FRESH[key])
 
+    def __post_init__(self) -> None:
+        self._pass_start = -1  # training state, not config: the step that started the current pass
+
+    def start_pass(self, step: int) -> None:
+        """Step ``step`` starts a pass over the training views (the original refills its view stack)."""
+        self._pass_start = step
+
     def step_post_backward(self, params, optimizers, state, step: int, info: dict) -> None:
         super().step_post_backward(params, optimizers, state, step, info)
-        if step > self.prune_from and step % self.prune_every == 0:
+        if step > self.prune_from and step == self._pass_start:
             seen = params["err_min_time"] >= 0
             thin = params["radius_min"] < self.small_radius
             ops.remove(params, optimizers, ~seen | thin)
@@ -509,6 +529,7 @@ class Ex4DGSExpert(Expert):
         )
         self.register_buffer("duration", torch.tensor(float(min(config.start_duration, num_frames))))
         self.register_buffer("last_growth", torch.tensor(-1))
+        self.register_buffer("pass_left", torch.tensor(0))  # views left in the current pass
         self.register_buffer("bin_errors", torch.zeros(math.ceil(num_frames / config.interval), 2))
         self.active_sh_degree = 0
         self._probe: tuple[Tensor, Tensor, float] | None = None  # (probe image, per-Gaussian probe, frame)
@@ -579,11 +600,11 @@ class Ex4DGSExpert(Expert):
 
     def splat_inputs(self, camera: Camera, background: Tensor | None) -> SplatInputs:
         frame = self.frame(camera.time, camera)
-        return SplatInputs(frame, background, antialiased=True, near=self.config.near)
+        return SplatInputs(frame, background, antialiased=True, near=self.config.near, far=self.config.far)
 
     def splat_inputs_key(self, camera: Camera) -> float:
         """Keyframe interpolation of ``t`` and SH colours: the inputs depend on the camera only through its
-        time (the near plane applies in ``render``)."""
+        time (the clipping planes apply in ``render``)."""
         return camera.time
 
     def render(
@@ -591,7 +612,7 @@ class Ex4DGSExpert(Expert):
     ) -> tuple[Tensor, RenderOutput, GaussianFrame]:
         """Antialiased render (0.1 dilation). While training: random background and the back-tracking
         probe (3 extra channels, kept in the graph with zero weight; see ``observe``)."""
-        camera = clip_camera(camera, self.config.near)
+        camera = clip_camera(camera, self.config.near, self.config.far)
         if not self.training:
             return super().render(camera, background, backend, return_stats)
         frame = self.frame(camera.time, camera)
@@ -664,7 +685,9 @@ class Ex4DGSExpert(Expert):
         """Progressive schedule: views of frames below the current duration; grow by ``interval`` frames every
         ``grow_every`` iterations and convert with a view of the newest frames, then and again
         ``make_dynamic_interval`` iterations later; while densifying, convert every ``extract_every``
-        iterations with a view of the worst time bin."""
+        iterations with a view of the worst time bin. Counts passes over the views of the trained frames
+        (as many draws as there are such views when the pass starts) and tells the strategy when one
+        starts. Deviation: draws are with replacement, where the original pops a shuffled stack."""
         c = self.config
         grow = step > c.grow_from and step % c.grow_every == 0 and int(self.duration) < self.num_frames
         if grow:
@@ -674,6 +697,25 @@ class Ex4DGSExpert(Expert):
             int(self.last_growth) >= 0 and step == int(self.last_growth) + c.make_dynamic_interval
         )
         frames = torch.tensor([round(self.frame_index(v.camera.time)) for v in views])  # views sit on frames
+        if int(self.pass_left) <= 0:  # a new pass over the views of the frames trained so far
+            self.pass_left.fill_(int((frames < self.duration).sum()))
+            if isinstance(c.strategy, Ex4DGSStrategy):
+                c.strategy.start_pass(step)
+        picked = self._pick(step, views, frames, newest, batch_size, generator)
+        self.pass_left.sub_(len(picked))
+        return picked
+
+    def _pick(
+        self,
+        step: int,
+        views: list[View],
+        frames: Tensor,
+        newest: bool,
+        batch_size: int,
+        generator: torch.Generator,
+    ) -> list[int]:
+        """The views of ``select_views`` at ``step`` (``frames [V]``: each view's frame index)."""
+        c = self.config
         if newest:
             pool = ((frames >= int(self.duration) - c.interval) & (frames < self.duration)).nonzero(
                 as_tuple=True
@@ -721,7 +763,7 @@ class Ex4DGSExpert(Expert):
         c, s = self.config, self.splats
         out = rasterize(
             self.frame(camera.time, camera).detach(),
-            clip_camera(camera, c.near),
+            clip_camera(camera, c.near, c.far),
             antialiased=True,
             return_depth=False,
             return_stats=True,

@@ -24,7 +24,7 @@ from moegs.camera import Camera
 from moegs.experts.base import Expert
 from moegs.gaussians import cat
 from moegs.moe.config import RouterConfig
-from moegs.moe.splat import expert_inputs, near_culled, ray_features, splat_experts
+from moegs.moe.splat import depth_culled, expert_inputs, ray_features, splat_experts
 from moegs.render import frame_colors, rasterize
 
 
@@ -204,7 +204,7 @@ class VolumeRouter(nn.Module):
         for k, (expert, inp) in enumerate(zip(experts, inputs, strict=True)):
             rgb = frame_colors(inp.frame, camera)
             one_hot = torch.nn.functional.one_hot(torch.full((len(inp.frame),), k), k_all).to(rgb)
-            frame = near_culled(inp.frame, camera, inp.near).with_colors(torch.cat([rgb, one_hot], dim=1))
+            frame = depth_culled(inp.frame, camera, inp.near, inp.far).with_colors(torch.cat([rgb, one_hot], dim=1))
             frames.append(replace(frame, opacities=frame.opacities * self.gated(k, expert, t)))
         joint, _ = cat(frames)
         bg = inputs[0].background

@@ -6,9 +6,9 @@
 With ``single_pass=True`` the experts are rendered by ``rasterize_multi``: projection and sorting once,
 one transmittance per expert (the paper's Single-Pass Multi-Expert Rendering). Experts whose rasterizer
 modes differ (Ex4DGS's antialiased 0.1-px dilation vs the 3DGS 0.3-px blur) cannot share one projection;
-they are rendered in one pass per mode. Each expert keeps its own near plane (``SplatInputs.near``) inside
-a shared pass: its Gaussians at or below that view depth get zero opacity, which composites nothing,
-exactly as culling them does. ``single_pass=False`` renders each expert on its own, as the
+they are rendered in one pass per mode. Each expert keeps its own clipping planes (``SplatInputs.near`` / ``far``)
+inside a shared pass: its Gaussians outside them get zero opacity, which composites nothing, exactly as
+culling them does. ``single_pass=False`` renders each expert on its own, as the
 authors' code does. Both give the same images (tested).
 """
 
@@ -60,13 +60,23 @@ def _passes(inputs: Sequence[SplatInputs], single_pass: bool) -> list[list[int]]
     return list(modes.values())
 
 
-def near_culled(frame: GaussianFrame, camera: Camera, near: float | None) -> GaussianFrame:
-    """``frame`` with zero opacity where the view depth is ``<= near`` (an expert's own near plane, when
-    above the camera's): the Gaussians its rasterizer would cull composite nothing."""
-    if near is None or near <= camera.near:
+def depth_culled(
+    frame: GaussianFrame, camera: Camera, near: float | None, far: float | None = None
+) -> GaussianFrame:
+    """``frame`` with zero opacity where the view depth is ``<= near`` or ``>= far`` (an expert's own
+    clipping planes, where tighter than the camera's): the Gaussians its rasterizer would cull composite
+    nothing."""
+    near = near if near is not None and near > camera.near else None
+    far = far if far is not None and far < camera.far else None
+    if near is None and far is None:
         return frame
     depth = camera_points(frame.means, camera)[:, 2]  # [N], as the projection culls by it
-    return replace(frame, opacities=torch.where(depth > near, frame.opacities, 0.0))
+    keep = torch.ones_like(depth, dtype=torch.bool)
+    if near is not None:
+        keep &= depth > near
+    if far is not None:
+        keep &= depth < far
+    return replace(frame, opacities=torch.where(keep, frame.opacities, 0.0))
 
 
 def splat_experts(
@@ -96,7 +106,7 @@ def splat_experts(
         colors = [frame_colors(inputs[k].frame, camera) for k in members]
         width = max(c.shape[1] for c in colors)
         frames = [
-            near_culled(inputs[k].frame, camera, inputs[k].near).with_colors(
+            depth_culled(inputs[k].frame, camera, inputs[k].near, inputs[k].far).with_colors(
                 torch.nn.functional.pad(c, (0, width - c.shape[1]))
             )
             for k, c in zip(members, colors, strict=True)

@@ -178,6 +178,11 @@ ROWS = [
     # -- Ex4DGS (juno181/Ex4DGS) ------------------------------------------------------------------------
     ("ex4dgs", "n3v:cook_spinach", "train.iterations", 40_000),  # configs/N3V/n3v_base.json:15
     ("ex4dgs", "n3v:cook_spinach", "near", 4.0),  # configs/N3V/n3v_base.json:16
+    ("ex4dgs", "n3v:cook_spinach", "far", 300.0),  # configs/N3V/n3v_base.json:17
+    ("ex4dgs", "technicolor:fabien", "far", 100.0),  # configs/techni/Fabien.json:14
+    ("ex4dgs", "technicolor:theater", "far", 100.0),  # configs/techni/Theater.json:14
+    ("ex4dgs", "technicolor:birthday", "far", 300.0),  # configs/techni/Birthday.json:14
+    ("ex4dgs", "n3v:cook_spinach", "strategy.prune_from", 6000),  # arguments/__init__.py:127
     ("ex4dgs", "n3v:cook_spinach", "strategy.grad_threshold", 2e-4),  # configs/N3V/n3v_base.json:3
     ("ex4dgs", "n3v:cook_spinach", "strategy.dynamic_grad_threshold", 1e-4),  # configs/N3V/n3v_base.json:4
     ("ex4dgs", "n3v:cook_spinach", "strategy.densify_every", 300),  # configs/N3V/n3v_base.json:18

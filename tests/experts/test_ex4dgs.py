@@ -150,6 +150,74 @@ def test_second_conversion_after_each_growth_and_interval_extraction_only_while_
         assert 10 <= round(expert.frame_index(scene.train[picks[step][0]].camera.time)) < 20
 
 
+def test_invisible_and_thin_pruning_runs_once_per_pass_over_the_trained_views():
+    """``train.py:117-122, 234-238``: when the shuffled view stack of the frames trained so far is refilled
+    after ``prune_invisible_interval``, that iteration prunes Gaussians never seen since creation and the
+    thin ones. A pass is as many draws as the stack holds; growth lengthens the next pass."""
+    expert, scene = _expert(num_frames=30, start_duration=10, grow_from=0, grow_every=50, interval=10)
+    strategy = expert.config.strategy
+    starts = []
+    strategy.start_pass = starts.append
+    g = torch.Generator().manual_seed(0)
+    for step in range(1, 200):
+        expert.select_views(step, scene.train, 1, g)
+    per_frame = len(scene.train) // 30  # 4 cameras
+    # frames 0-9 (40 views) for two passes; 0-19 (80) once grown at 50; 0-29 (120) once grown at 100
+    assert starts == [1, 1 + 10 * per_frame, 1 + 20 * per_frame, 1 + 20 * per_frame + 20 * per_frame]
+    assert int(expert.pass_left) == starts[-1] + 30 * per_frame - 200
+
+
+def test_pruning_waits_for_a_pass_start_after_prune_from():
+    expert, scene = _expert(num_frames=3)
+    strategy = expert.config.strategy
+    strategy.prune_from, strategy.densify_from = 5, 10**9  # densification out of the way
+    s = expert.splats
+    with torch.no_grad():
+        s["err_min_time"][:10] = -1.0  # never seen
+        s["err_min_time"][10:] = 0.0
+        s["radius_min"].fill_(100.0)
+    optimizers = Optimizers(expert.param_groups()).for_splats(s)
+    state = strategy.initialize_state(scene.extent)
+    n = s["means"].shape[0]
+    for step in (3, 7):
+        strategy.start_pass(step - 1)  # the pass started earlier: no pruning at step
+        strategy.step_post_backward(s, optimizers, state, step, {"renders": [], "views": []})
+        assert s["means"].shape[0] == n
+    strategy.start_pass(3)  # a pass starting before prune_from prunes nothing
+    strategy.step_post_backward(s, optimizers, state, 3, {"renders": [], "views": []})
+    assert s["means"].shape[0] == n
+    strategy.start_pass(8)
+    strategy.step_post_backward(s, optimizers, state, 8, {"renders": [], "views": []})
+    assert s["means"].shape[0] == n - 10
+
+
+def test_far_plane_culls_beyond_it_in_renders_and_shared_passes():
+    """The rasterizer culls at view depth ``> far`` (``auxiliary.h:284``); a shared pass with another
+    Ex4DGS expert gives the same image by zeroing those Gaussians' opacity."""
+    from dataclasses import replace
+
+    from moegs.moe.splat import expert_inputs, splat_experts
+    from moegs.render.projection import camera_points
+
+    expert, scene = _expert()
+    other = Ex4DGSExpert.from_scene(scene, replace(expert.config, max_init_points=60))
+    expert.eval(), other.eval()
+    camera = scene.test[0].camera
+    assert expert.config.far == 300.0 and camera.far > 300.0
+    with torch.no_grad():
+        depth = camera_points(expert.frame(camera.time).means, camera)[:, 2]
+        cut = float(depth.median())
+        expert.config = replace(expert.config, far=cut)  # drops the farther half
+        image, out, _ = expert.render(camera, scene.background, return_stats=True)
+        one = splat_experts(expert_inputs([expert, other], camera, scene.background), camera)
+        full = rasterize(expert.frame(camera.time), camera, background=scene.background, antialiased=True)
+    assert not out.info["visible"][depth >= cut].any() and out.info["visible"][depth < cut].any()
+    assert one.passes == 1
+    torch.testing.assert_close(one.images[0], image, atol=1e-5, rtol=0)
+    torch.testing.assert_close(one.images[1], other.render(camera, scene.background)[0], atol=1e-5, rtol=0)
+    assert (image - full.image).abs().max() > 0.05  # the far half was in view: culling it shows
+
+
 def test_backtracking_of_one_gaussian_is_its_mean_pixel_error():
     expert, scene = _expert()
     s = expert.splats
