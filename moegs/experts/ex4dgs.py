@@ -389,8 +389,10 @@ class Ex4DGSStrategy(ADCStrategy):
     error_ssim: float = 0.6
     prune_from: int = 6000
     """``prune_invisible`` / ``prune_small`` at the first iteration of each pass over the training views
-    that starts after this (``prune_invisible_interval``, ``arguments/__init__.py:127``; ``train.py:117-122,
-    234-238``). The expert reports the passes (``start_pass``)."""
+    that starts after this and before ``densify_until`` (``prune_invisible_interval``,
+    ``arguments/__init__.py:127``; ``train.py:117-122, 202, 234-238``), keeping the densification statistics
+    of the rest (``prune_points`` masks them). The expert reports the passes (``start_pass``). The original
+    also requires iteration > 3000, which a ``prune_from`` of 6000 implies."""
     small_radius: float = 5.0
     interval: int = 10
     """Keyframe interval (copied from the config by the expert)."""
@@ -486,11 +488,10 @@ class Ex4DGSStrategy(ADCStrategy):
 
     def step_post_backward(self, params, optimizers, state, step: int, info: dict) -> None:
         super().step_post_backward(params, optimizers, state, step, info)
-        if step > self.prune_from and step == self._pass_start:
+        if self.prune_from < step < self.densify_until and step == self._pass_start:
             seen = params["err_min_time"] >= 0
             thin = params["radius_min"] < self.small_radius
-            ops.remove(params, optimizers, ~seen | thin)
-            self._reset_stats(state, params["means"].shape[0], params["means"].detach())
+            self._remove_keeping_stats(params, optimizers, state, ~seen | thin)
 
 
 def base_opacity(params) -> Tensor:

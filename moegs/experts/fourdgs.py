@@ -139,9 +139,7 @@ class FourDGSStrategy(ADCStrategy):
                 prune |= world > self.prune_world_scale * state["scene_scale"]
             if self.prune_screen_size is not None:
                 prune |= state["max_radii"] > self.prune_screen_size
-        ops.remove(params, optimizers, prune)
-        for key in ("grad2d", "count", "max_radii"):  # 4DGaussians' prune_points masks the statistics
-            state[key] = state[key][~prune]
+        self._remove_keeping_stats(params, optimizers, state, prune)
         state["last_refine"] = {"clone": 0, "split": 0, "prune": int(prune.sum())}
 
     def step_post_backward(self, params, optimizers, state, step: int, info: dict) -> None:

@@ -167,10 +167,12 @@ def test_invisible_and_thin_pruning_runs_once_per_pass_over_the_trained_views():
     assert int(expert.pass_left) == starts[-1] + 30 * per_frame - 200
 
 
-def test_pruning_waits_for_a_pass_start_after_prune_from():
+def test_pruning_waits_for_a_pass_start_after_prune_from_and_stops_with_densification():
+    """Pruning sits in the original's densification block (``train.py:202``) and masks the statistics of
+    the survivors instead of restarting them (``prune_points``)."""
     expert, scene = _expert(num_frames=3)
     strategy = expert.config.strategy
-    strategy.prune_from, strategy.densify_from = 5, 10**9  # densification out of the way
+    strategy.prune_from, strategy.densify_from, strategy.densify_until = 5, 10**9, 20  # no densification
     s = expert.splats
     with torch.no_grad():
         s["err_min_time"][:10] = -1.0  # never seen
@@ -186,8 +188,15 @@ def test_pruning_waits_for_a_pass_start_after_prune_from():
     strategy.start_pass(3)  # a pass starting before prune_from prunes nothing
     strategy.step_post_backward(s, optimizers, state, 3, {"renders": [], "views": []})
     assert s["means"].shape[0] == n
+    accumulated = torch.arange(n, dtype=torch.float32)
+    state.update(grad2d=accumulated.clone(), count=torch.ones(n), max_radii=accumulated.clone())
     strategy.start_pass(8)
     strategy.step_post_backward(s, optimizers, state, 8, {"renders": [], "views": []})
+    assert s["means"].shape[0] == n - 10
+    assert torch.equal(state["grad2d"], accumulated[10:]) and torch.equal(state["max_radii"], accumulated[10:])
+    s["err_min_time"][:5] = -1.0
+    strategy.start_pass(20)  # at densify_until: the block is over
+    strategy.step_post_backward(s, optimizers, state, 20, {"renders": [], "views": []})
     assert s["means"].shape[0] == n - 10
 
 

@@ -73,6 +73,15 @@ class ADCStrategy(Strategy):
         state["count"] = like.new_zeros(n)
         state["max_radii"] = like.new_zeros(n)
 
+    @staticmethod
+    def _remove_keeping_stats(params, optimizers, state: dict, prune: Tensor) -> None:
+        """Drop the Gaussians of ``prune [N]`` and the same rows of the statistics, which keep
+        accumulating for the rest (the originals' ``prune_points`` masks them, it does not restart them)."""
+        ops.remove(params, optimizers, prune)
+        for key in ("grad2d", "count", "max_radii"):
+            if state[key] is not None:
+                state[key] = state[key][~prune]
+
     def _update_stats(self, params, state: dict, info: dict) -> None:
         n = params["means"].shape[0]
         if state["grad2d"] is None or state["grad2d"].shape[0] != n:
