@@ -193,7 +193,8 @@ def test_pruning_waits_for_a_pass_start_after_prune_from_and_stops_with_densific
     strategy.start_pass(8)
     strategy.step_post_backward(s, optimizers, state, 8, {"renders": [], "views": []})
     assert s["means"].shape[0] == n - 10
-    assert torch.equal(state["grad2d"], accumulated[10:]) and torch.equal(state["max_radii"], accumulated[10:])
+    assert torch.equal(state["grad2d"], accumulated[10:])
+    assert torch.equal(state["max_radii"], accumulated[10:])
     s["err_min_time"][:5] = -1.0
     strategy.start_pass(20)  # at densify_until: the block is over
     strategy.step_post_backward(s, optimizers, state, 20, {"renders": [], "views": []})
