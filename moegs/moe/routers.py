@@ -204,7 +204,9 @@ class VolumeRouter(nn.Module):
         for k, (expert, inp) in enumerate(zip(experts, inputs, strict=True)):
             rgb = frame_colors(inp.frame, camera)
             one_hot = torch.nn.functional.one_hot(torch.full((len(inp.frame),), k), k_all).to(rgb)
-            frame = depth_culled(inp.frame, camera, inp.near, inp.far).with_colors(torch.cat([rgb, one_hot], dim=1))
+            frame = depth_culled(inp.frame, camera, inp.near, inp.far).with_colors(
+                torch.cat([rgb, one_hot], dim=1)
+            )
             frames.append(replace(frame, opacities=frame.opacities * self.gated(k, expert, t)))
         joint, _ = cat(frames)
         bg = inputs[0].background

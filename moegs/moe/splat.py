@@ -6,10 +6,10 @@
 With ``single_pass=True`` the experts are rendered by ``rasterize_multi``: projection and sorting once,
 one transmittance per expert (the paper's Single-Pass Multi-Expert Rendering). Experts whose rasterizer
 modes differ (Ex4DGS's antialiased 0.1-px dilation vs the 3DGS 0.3-px blur) cannot share one projection;
-they are rendered in one pass per mode. Each expert keeps its own clipping planes (``SplatInputs.near`` / ``far``)
-inside a shared pass: its Gaussians outside them get zero opacity, which composites nothing, exactly as
-culling them does. ``single_pass=False`` renders each expert on its own, as the
-authors' code does. Both give the same images (tested).
+they are rendered in one pass per mode. Each expert keeps its own clipping planes
+(``SplatInputs.near`` / ``far``) inside a shared pass: its Gaussians outside them get zero opacity,
+which composites nothing, exactly as culling them does. ``single_pass=False`` renders each expert on
+its own, as the authors' code does. Both give the same images (tested).
 """
 
 from __future__ import annotations
