@@ -79,8 +79,7 @@ class ADCStrategy(Strategy):
         accumulating for the rest (the originals' ``prune_points`` masks them, it does not restart them)."""
         ops.remove(params, optimizers, prune)
         for key in ("grad2d", "count", "max_radii"):
-            if state[key] is not None:
-                state[key] = state[key][~prune]
+            state[key] = state[key][~prune]
 
     def _update_stats(self, params, state: dict, info: dict) -> None:
         n = params["means"].shape[0]
