@@ -84,12 +84,15 @@ def _composite(
     order = torch.argsort(segment * max(n, 1) + rank[gauss])
     gauss, pix, segment = gauss[order], pix[order], segment[order]
 
+    # index_select, not x[gauss]: the backward of advanced indexing on CPU adds with atomics across
+    # threads (order varies run to run); index_select's backward, an index_add, sums in index order
     px = (pix % width).to(means2d.dtype) + 0.5
     py = torch.div(pix, width, rounding_mode="floor").to(means2d.dtype) + 0.5
-    dx, dy = px - means2d[gauss, 0], py - means2d[gauss, 1]
-    a, b, c = conics[gauss, 0], conics[gauss, 1], conics[gauss, 2]
+    mean = means2d.index_select(0, gauss)
+    dx, dy = px - mean[:, 0], py - mean[:, 1]
+    a, b, c = conics.index_select(0, gauss).unbind(1)
     power = -0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy
-    alpha = torch.clamp(opacities[gauss] * torch.exp(power), max=ALPHA_MAX)
+    alpha = torch.clamp(opacities.index_select(0, gauss) * torch.exp(power), max=ALPHA_MAX)
     alpha = torch.where((power > 0) | (alpha < ALPHA_MIN), torch.zeros_like(alpha), alpha)
 
     # segmented transmittance: float64 log-space cumsum, restarted at each segment
@@ -99,7 +102,7 @@ def _composite(
     first[1:] = segment[1:] != segment[:-1]
     seg_id = torch.cumsum(first.long(), 0) - 1
     seg_start = torch.nonzero(first).squeeze(1)
-    offset = (csum - log_keep)[seg_start][seg_id]
+    offset = (csum - log_keep).index_select(0, seg_start).index_select(0, seg_id)
     t_incl = torch.exp(csum - offset)
     t_excl = torch.exp(csum - log_keep - offset)
     keep = (t_incl >= T_MIN).to(alpha.dtype)
@@ -107,7 +110,7 @@ def _composite(
 
     out_index = groups[gauss] * hw + pix
     image = torch.zeros(num_groups * hw, d, dtype=colors.dtype, device=colors.device)
-    image = image.index_add(0, out_index, weight[:, None] * colors[gauss])
+    image = image.index_add(0, out_index, weight[:, None] * colors.index_select(0, gauss))
     acc = torch.zeros(num_groups * hw, dtype=colors.dtype, device=colors.device)
     acc = acc.index_add(0, out_index, weight)
     contrib = torch.zeros(n, dtype=colors.dtype, device=colors.device).index_add(0, gauss, weight.detach())

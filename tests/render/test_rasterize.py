@@ -343,6 +343,31 @@ def test_means2d_grad_is_the_screen_space_gradient(make_camera, make_frame):
     assert (expected.abs().sum(-1) > 0).all()
 
 
+def test_reference_gradients_are_the_same_run_to_run_on_two_threads(make_camera, make_frame):
+    """Large overlapping splats send many (Gaussian, pixel) pairs to each Gaussian; their gradient sums
+    must not depend on how threads interleave (advanced indexing's CPU backward does)."""
+    cam = make_camera(32, 32)
+    frame = make_frame(150, cam, scale=0.4, seed=3)
+    leaves = [t.clone().requires_grad_(True) for t in (frame.means, frame.scales, frame.opacities, frame.colors)]
+    weights = torch.rand(32, 32, 3, generator=torch.Generator().manual_seed(0))
+
+    def grads():
+        means, scales, opacities, colors = leaves
+        splats = GaussianFrame(means, frame.quats, scales, opacities, colors=colors)
+        out = rasterize(splats, cam, backend="torch")
+        return torch.autograd.grad((out.image * weights).sum() + out.depth.sum(), leaves)
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        first = grads()
+        for _ in range(3):
+            for a, b in zip(first, grads(), strict=True):
+                assert torch.equal(a, b)
+    finally:
+        torch.set_num_threads(threads)
+
+
 # -- compiled CPU kernel against the reference ------------------------------------------------------
 @pytest.mark.usefixtures("require_cpu_kernel")
 @pytest.mark.parametrize("channels", [1, 3, 16])
