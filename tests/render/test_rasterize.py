@@ -348,7 +348,9 @@ def test_reference_gradients_are_the_same_run_to_run_on_two_threads(make_camera,
     must not depend on how threads interleave (advanced indexing's CPU backward does)."""
     cam = make_camera(32, 32)
     frame = make_frame(150, cam, scale=0.4, seed=3)
-    leaves = [t.clone().requires_grad_(True) for t in (frame.means, frame.scales, frame.opacities, frame.colors)]
+    leaves = [
+        t.clone().requires_grad_(True) for t in (frame.means, frame.scales, frame.opacities, frame.colors)
+    ]
     weights = torch.rand(32, 32, 3, generator=torch.Generator().manual_seed(0))
 
     def grads():
