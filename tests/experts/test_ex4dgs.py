@@ -168,8 +168,9 @@ def test_invisible_and_thin_pruning_runs_once_per_pass_over_the_trained_views():
 
 
 def test_pruning_waits_for_a_pass_start_after_prune_from_and_stops_with_densification():
-    """Pruning sits in the original's densification block (``train.py:202``) and masks the statistics of
-    the survivors instead of restarting them (``prune_points``)."""
+    """Pruning stops with densification (a deviation: the original's ``train.py:237`` sits outside its
+    ``densify_until_iter`` block) and masks the statistics of the survivors instead of restarting them
+    (``prune_points``)."""
     expert, scene = _expert(num_frames=3)
     strategy = expert.config.strategy
     strategy.prune_from, strategy.densify_from, strategy.densify_until = 5, 10**9, 20  # no densification
