@@ -9,8 +9,9 @@ Two disjoint sets of Gaussians, kept here in one set of per-Gaussian tensors wit
   ``sigmoid(o)`` times a two-sided temporal Gaussian around the centres ``c0, c1``.
 
 Time is the integer frame index (``(t - t_first) / frame_step`` of the normalised scene time). Training
-starts static on the first ``start_duration`` frames and grows by ``I`` frames every
-``grow_every`` iterations; after each growth, ``make_dynamic_interval`` iterations later, and every
+starts static on frames ``0..start_duration`` and grows by ``I`` frames every ``grow_every`` iterations,
+drawing its views from a shuffled stack of the trained frames' views; at the first view of the newest
+frames after each growth and after ``make_dynamic_interval`` more iterations, and every
 ``extract_every`` iterations until the densification ends, the static Gaussians that drift most
 relative to their distance to the camera become dynamic. A per-Gaussian
 error is accumulated by back-tracking the per-pixel L1 / SSIM maps through the splatting weights
@@ -172,16 +173,19 @@ class Ex4DGSConfig(ExpertConfig):
     start_duration: int = 10
     """Frames trained before the first growth (``start_duration``)."""
     grow_from: int = 500
-    """First growth after this iteration (``extract_from_iter``)."""
+    """Growths and conversions only after this iteration (``extract_from_iter``); the first growth also waits
+    one ``grow_every`` (``train.py:262``)."""
     grow_every: int = 400
     """Iterations between growths by ``interval`` frames (``progressive_growing_steps``, N3V 400)."""
     make_dynamic_interval: int = 100
-    """A second conversion this many iterations after each growth (``make_dynamic_interval``: N3V and every
-    Technicolor config 100, ``configs/N3V/n3v_base.json:27``; ``train.py:257-259`` marks it while the
-    growth's ``need_extract`` holds, and the ``~need_extract`` of ``:262`` is always true)."""
+    """Arms a conversion at this offset into a growth period while ``need_extract`` holds: after each growth,
+    and once before the first (it starts true) (``make_dynamic_interval``: N3V and every Technicolor config
+    100, ``configs/N3V/n3v_base.json:27``; ``train.py:257-259``; the ``~need_extract`` of ``:262`` is always
+    true)."""
     extract_every: int = 3980
-    """Extra static-to-dynamic conversions at the worst time bin (``extracton_interval``, N3V 3980), only
-    while densifying (inside ``if iteration < densify_until_iter``, ``train.py:203, 228``)."""
+    """Extra static-to-dynamic conversions with the step's view while a time bin has errors
+    (``extracton_interval``, N3V 3980), only while densifying and not at a densification step (the
+    ``elif`` inside ``if iteration < densify_until_iter``, ``train.py:203, 224-228``)."""
     extract_percentile: float = 0.98
     """Quantile of the drift score above which visible static Gaussians become dynamic (Train 0.99)."""
     static_reg: float = 1e-4
@@ -335,7 +339,9 @@ class Ex4DGSConfig(ExpertConfig):
             "grow_from": 30,
             "grow_every": 30,  # 500/400 -> 30/30 so 150 D-NeRF frames are reached at ~450
             "make_dynamic_interval": 8,  # 100 of every 400 -> 8 of every 30
-            "extract_every": 300,
+            # 3980 / (400 / 30) ~ 299: off the densification grid, as 3980 is off N3V's 300 (a conversion
+            # step must not densify, train.py:224); 300 would fall on every 50 and never convert
+            "extract_every": 299,
             "reg_from": 30,
             "means_lr_max_steps": QUICK_ITERATIONS,
             # RAdam -> Adam: RAdam's variance rectification warms up over ~1/(1-β2) = 1000s of steps (plain
@@ -389,10 +395,11 @@ class Ex4DGSStrategy(ADCStrategy):
     error_ssim: float = 0.6
     prune_from: int = 6000
     """``prune_invisible`` / ``prune_small`` at the first iteration of each pass over the training views
-    that starts after this and before ``densify_until`` (``prune_invisible_interval``,
-    ``arguments/__init__.py:127``; ``train.py:117-122, 202, 234-238``), keeping the densification statistics
-    of the rest (``prune_points`` masks them). The expert reports the passes (``start_pass``). The original
-    also requires iteration > 3000, which a ``prune_from`` of 6000 implies."""
+    that starts after this (``prune_invisible_interval``, ``arguments/__init__.py:127``;
+    ``train.py:117-122, 237-241``, outside the ``densify_until_iter`` block), keeping the densification
+    statistics of the rest (``prune_points`` masks them). The expert reports the passes (``start_pass``)
+    but the last step's. The original also requires iteration > 3000, which a ``prune_from`` of 6000
+    implies."""
     small_radius: float = 5.0
     interval: int = 10
     """Keyframe interval (copied from the config by the expert)."""
@@ -488,7 +495,7 @@ class Ex4DGSStrategy(ADCStrategy):
 
     def step_post_backward(self, params, optimizers, state, step: int, info: dict) -> None:
         super().step_post_backward(params, optimizers, state, step, info)
-        if self.prune_from < step < self.densify_until and step == self._pass_start:
+        if self.prune_from < step and step == self._pass_start:
             seen = params["err_min_time"] >= 0
             thin = params["radius_min"] < self.small_radius
             self._remove_keeping_stats(params, optimizers, state, ~seen | thin)
@@ -516,6 +523,7 @@ class Ex4DGSExpert(Expert):
         num_frames: int,
         extent: float,
         multiview: bool,
+        num_views: int,
     ) -> None:
         super().__init__(config, splats)
         self.spatial_lr_scale = spatial_lr_scale
@@ -529,8 +537,10 @@ class Ex4DGSExpert(Expert):
             config.random_background if config.random_background is not None else multiview
         )
         self.register_buffer("duration", torch.tensor(float(min(config.start_duration, num_frames))))
-        self.register_buffer("last_growth", torch.tensor(-1))
-        self.register_buffer("pass_left", torch.tensor(0))  # views left in the current pass
+        self.register_buffer("need_extract", torch.tensor(True))  # arms the next make_dynamic_interval step
+        self.register_buffer("view_stack", torch.zeros(num_views, dtype=torch.long))  # shuffled pass
+        self.register_buffer("pass_left", torch.tensor(0))  # views of view_stack[:pass_left] left to draw
+        self.register_buffer("convert_newest", torch.tensor(False))  # ``mark_last``
         self.register_buffer("bin_errors", torch.zeros(math.ceil(num_frames / config.interval), 2))
         self.active_sh_degree = 0
         self._probe: tuple[Tensor, Tensor, float] | None = None  # (probe image, per-Gaussian probe, frame)
@@ -563,7 +573,15 @@ class Ex4DGSExpert(Expert):
             splats[key] = nn.Parameter(value, requires_grad=False)
         scale = config.spatial_lr_scale if config.spatial_lr_scale is not None else scene.extent
         return cls(
-            config, splats, scale, float(times[0]), step, scene.num_frames, scene.extent, scene.multiview
+            config,
+            splats,
+            scale,
+            float(times[0]),
+            step,
+            scene.num_frames,
+            scene.extent,
+            scene.multiview,
+            len(scene.train),
         )
 
     # -- time ---------------------------------------------------------------------------------------------
@@ -683,63 +701,73 @@ class Ex4DGSExpert(Expert):
     def select_views(
         self, step: int, views: list[View], batch_size: int, generator: torch.Generator
     ) -> list[int]:
-        """Progressive schedule: views of frames below the current duration; grow by ``interval`` frames every
-        ``grow_every`` iterations and convert with a view of the newest frames, then and again
-        ``make_dynamic_interval`` iterations later; while densifying, convert every ``extract_every``
-        iterations with a view of the worst time bin. Counts passes over the views of the trained frames
-        (as many draws as there are such views when the pass starts) and tells the strategy when one
-        starts. Deviation: draws are with replacement, where the original pops a shuffled stack."""
+        """Progressive schedule (``train.py:115-124, 224-283``).
+
+        Views are popped from a shuffled stack of the views of the frames trained so far (frame index up
+        to the duration, inclusive: ``scene/__init__.py:271``); an empty stack is refilled, which starts a
+        pass (the strategy's pruning clock). The duration grows by ``interval`` frames every
+        ``grow_every`` iterations after ``max(grow_from, grow_every)``; each growth, and the step
+        ``make_dynamic_interval`` into the next period (also before the first growth), arms a conversion
+        that fires with the first popped view of the newest ``interval`` frames. While
+        densifying, every ``extract_every`` iterations that are not densification steps convert with the
+        popped view when a time bin has recorded errors (the original's ``candidate`` time is unused by
+        the conversion). Deviation: growths and conversions act before their step's render; the original
+        grows and converts after the step's update (the worst-bin conversion after its render).
+        """
         c = self.config
-        grow = step > c.grow_from and step % c.grow_every == 0 and int(self.duration) < self.num_frames
-        if grow:
+        if len(views) != self.view_stack.numel():
+            built = self.view_stack.numel()
+            raise ValueError(f"Ex4DGS was built for {built} training views, select_views got {len(views)}")
+        if step > c.grow_from and step % c.grow_every == c.make_dynamic_interval and bool(self.need_extract):
+            self.convert_newest.fill_(True)
+            self.need_extract.fill_(False)
+        if (
+            step > max(c.grow_from, c.grow_every)
+            and step % c.grow_every == 0
+            and int(self.duration) < self.num_frames
+        ):
             self._grow(min(int(self.duration) + c.interval, self.num_frames))
-            self.last_growth.fill_(step)
-        newest = grow or (
-            int(self.last_growth) >= 0 and step == int(self.last_growth) + c.make_dynamic_interval
-        )
+            self.convert_newest.fill_(True)
+            self.need_extract.fill_(True)
         frames = torch.tensor([round(self.frame_index(v.camera.time)) for v in views])  # views sit on frames
-        if int(self.pass_left) <= 0:  # a new pass over the views of the frames trained so far
-            self.pass_left.fill_(int((frames < self.duration).sum()))
-            if isinstance(c.strategy, Ex4DGSStrategy):
-                c.strategy.start_pass(step)
-        picked = self._pick(step, views, frames, newest, batch_size, generator)
-        self.pass_left.sub_(len(picked))
+        picked = [self._pop(step, frames, generator) for _ in range(batch_size)]
+        newest = [i for i in picked if int(frames[i]) >= float(self.duration) - c.interval]
+        if bool(self.convert_newest) and newest:
+            self.convert(views[newest[0]].camera)
+            self.convert_newest.fill_(False)
+        if self._extracts(step):
+            mean = self.bin_errors[:, 0] / self.bin_errors[:, 1].clamp_min(1)
+            self.bin_errors[int(mean.argmax())] = 0  # ``get_errorneous_timestamp`` drops the worst bin
+            self.convert(views[picked[0]].camera)
         return picked
 
-    def _pick(
-        self,
-        step: int,
-        views: list[View],
-        frames: Tensor,
-        newest: bool,
-        batch_size: int,
-        generator: torch.Generator,
-    ) -> list[int]:
-        """The views of ``select_views`` at ``step`` (``frames [V]``: each view's frame index)."""
-        c = self.config
-        if newest:
-            pool = ((frames >= int(self.duration) - c.interval) & (frames < self.duration)).nonzero(
-                as_tuple=True
-            )[0]
-        elif (
+    def _pop(self, step: int, frames: Tensor, generator: torch.Generator) -> int:
+        """The next view of the stack (``frames [V]``: each view's frame); refills it when empty."""
+        if int(self.pass_left) == 0:
+            eligible = (frames <= self.duration).nonzero(as_tuple=True)[0]
+            n = eligible.numel()
+            self.view_stack[:n] = eligible[torch.randperm(n, generator=generator)]
+            self.pass_left.fill_(n)
+            strategy = self.config.strategy
+            if isinstance(strategy, Ex4DGSStrategy) and step < self.config.train.iterations:  # train.py:237
+                strategy.start_pass(step)
+        self.pass_left.sub_(1)
+        return int(self.view_stack[int(self.pass_left)])
+
+    def _extracts(self, step: int) -> bool:
+        """Whether ``step`` runs the ``extracton_interval`` conversion (``train.py:224-228``: the ``elif`` of
+        a densification step, inside ``iteration < densify_until_iter``)."""
+        c, strategy = self.config, self.config.strategy
+        adc = isinstance(strategy, ADCStrategy)
+        densifies = adc and step > strategy.densify_from and step % strategy.densify_every == 0
+        return bool(
             c.extract_every
             and step > c.grow_from
             and step % c.extract_every == 0
-            and step < getattr(c.strategy, "densify_until", NEVER)  # an ADC strategy's window
+            and step < (strategy.densify_until if adc else NEVER)
+            and not densifies
             and self.bin_errors[:, 1].any()
-        ):
-            mean = self.bin_errors[:, 0] / self.bin_errors[:, 1].clamp_min(1)
-            worst = int(mean.argmax())
-            self.bin_errors[worst] = 0
-            pool = ((frames // c.interval) == worst).nonzero(as_tuple=True)[0]
-        else:
-            pool = torch.empty(0, dtype=torch.long)
-        if pool.numel():
-            pick = int(pool[torch.randint(pool.numel(), (1,), generator=generator)])
-            self.convert(views[pick].camera)
-            return [pick]
-        eligible = (frames < self.duration).nonzero(as_tuple=True)[0]
-        return eligible[torch.randint(eligible.numel(), (batch_size,), generator=generator)].tolist()
+        )
 
     @torch.no_grad()
     def _grow(self, duration: int) -> None:

@@ -124,34 +124,79 @@ def test_conversion_uses_drift_over_squared_distance_and_best_frame():
     assert torch.isfinite(frame.means).all() and not torch.allclose(frame.means[i], s["means"][i])
 
 
-def test_progressive_schedule_grows_and_converts_with_newest_frames():
-    expert, scene = _expert(num_frames=30, start_duration=10, grow_from=0, grow_every=5, interval=10)
+def _frame(expert, view) -> int:
+    return round(expert.frame_index(view.camera.time))
+
+
+def _recording_conversions(expert) -> list:
+    """Replace ``expert.convert`` by a recorder of the cameras it is called with."""
+    cameras = []
+    expert.convert = cameras.append
+    return cameras
+
+
+def test_views_are_popped_from_a_shuffled_stack_of_the_trained_frames():
+    """``train.py:117-124``: an empty stack is refilled with the shuffled views of frames ``0..duration``
+    (inclusive, ``scene/__init__.py:271``) and popped one view per step, so a pass sees each view once."""
+    expert, scene = _expert(num_frames=30, start_duration=10, grow_from=0, grow_every=10**6, interval=10)
     g = torch.Generator().manual_seed(0)
-    for step in range(1, 5):
+    eligible = sorted(i for i, v in enumerate(scene.train) if _frame(expert, v) <= 10)
+    assert len(eligible) == 11 * (len(scene.train) // 30)  # frame 10 is trained from the start
+    passes = [[expert.select_views(step, scene.train, 1, g)[0] for step in range(k, k + len(eligible))]
+              for k in (1, 1 + len(eligible))]  # fmt: skip
+    assert sorted(passes[0]) == eligible and sorted(passes[1]) == eligible
+    assert passes[0] != passes[1] and passes[0] != eligible  # shuffled anew each pass
+
+
+def test_growth_arms_a_conversion_that_fires_with_the_first_view_of_the_newest_frames():
+    """``train.py:126-129, 257-283``: a growth, and the step ``make_dynamic_interval`` into a growth period
+    while ``need_extract`` holds (it starts true), arm a conversion (``mark_last``); it runs with the first
+    popped view whose frame is within ``interval`` of the duration, whatever the batch. The first growth
+    waits for ``iteration > progressive_growing_steps``."""
+    expert, scene = _expert(num_frames=30, start_duration=10, grow_from=0, grow_every=5, interval=10)
+    expert.config.make_dynamic_interval, expert.config.extract_every = 2, 0
+    cameras = _recording_conversions(expert)
+    g = torch.Generator().manual_seed(0)
+    durations, converted, expected, armed = {}, [], [], False
+    for step in range(1, 41):
+        picks = expert.select_views(step, scene.train, 2, g)
+        durations[step] = float(expert.duration)
+        armed = armed or step in (2, 10, 12, 15, 17)  # by hand: 2 % 5 == 2 before any growth; grown at 10, 15
+        newest = [i for i in picks if _frame(expert, scene.train[i]) >= durations[step] - 10]
+        if armed and newest:
+            expected.append(step)
+            armed = False
+        if len(cameras) > len(converted):
+            converted.append(step)
+            assert cameras[-1] is scene.train[newest[0]].camera
+    assert [durations[s] for s in (9, 10, 14, 15, 40)] == [10, 20, 20, 30, 30]
+    assert converted == expected and converted[0] == 2
+
+
+def test_interval_extraction_converts_with_the_step_view_only_while_densifying_between_densifications():
+    """``train.py:203, 224-228``: every ``extracton_interval`` iterations, while densifying but not at a
+    densification step (the ``elif``), a time bin with errors converts with the popped view and is
+    dropped (``get_errorneous_timestamp``)."""
+    expert, scene = _expert(num_frames=3, grow_from=0, grow_every=10**6, interval=1)  # a bin a frame
+    expert.config.extract_every, expert.config.make_dynamic_interval = 4, 0  # no growth, nothing armed
+    strategy = expert.config.strategy
+    strategy.densify_from, strategy.densify_every, strategy.densify_until = 0, 8, 14
+    expert.bin_errors[0] = torch.tensor([1.0, 1.0])
+    expert.bin_errors[-1] = torch.tensor([2.0, 1.0])
+    cameras = _recording_conversions(expert)
+    g = torch.Generator().manual_seed(0)
+    at = {}
+    for step in range(1, 21):
         (i,) = expert.select_views(step, scene.train, 1, g)
-        assert round(expert.frame_index(scene.train[i].camera.time)) < 10  # frame 10 reads 9.999998
-    (i,) = expert.select_views(5, scene.train, 1, g)  # growth to 20 frames, view from frames 10..19
-    assert float(expert.duration) == 20 and 10 <= round(expert.frame_index(scene.train[i].camera.time)) < 20
-
-
-def test_second_conversion_after_each_growth_and_interval_extraction_only_while_densifying():
-    """``train.py``: a growth converts with a view of the newest frames, and so does the step
-    ``make_dynamic_interval`` later (``:257-259``); the ``extracton_interval`` conversion runs only before
-    ``densify_until_iter`` (``:203, 228``). A conversion trains on its one view, other steps on a batch."""
-    expert, scene = _expert(num_frames=30, start_duration=10, grow_from=0, grow_every=5, interval=10)
-    expert.config.make_dynamic_interval, expert.config.extract_every = 2, 4
-    expert.config.strategy.densify_until = 6
-    expert.bin_errors[1] = torch.tensor([1.0, 1.0])  # frames 10..19 have errors
-    g = torch.Generator().manual_seed(0)
-    picks = {step: expert.select_views(step, scene.train, 3, g) for step in range(1, 11)}
-    converted = [step for step, p in picks.items() if len(p) == 1]
-    assert converted == [4, 5, 7, 10]  # extraction at 4 (< 6, not at 8), growths at 5 and 10, 5 + 2
-    for step in (5, 7):
-        assert 10 <= round(expert.frame_index(scene.train[picks[step][0]].camera.time)) < 20
+        if len(cameras) > len(at):
+            at[step] = cameras[-1]
+            assert cameras[-1] is scene.train[i].camera
+    assert list(at) == [4, 12]  # 8 densifies, 16 and 20 are past densify_until
+    assert not expert.bin_errors[:, 1].any()  # the worst bin first, then the other
 
 
 def test_invisible_and_thin_pruning_runs_once_per_pass_over_the_trained_views():
-    """``train.py:117-122, 234-238``: when the shuffled view stack of the frames trained so far is refilled
+    """``train.py:117-122, 237-241``: when the shuffled view stack of the frames trained so far is refilled
     after ``prune_invisible_interval``, that iteration prunes Gaussians never seen since creation and the
     thin ones. A pass is as many draws as the stack holds; growth lengthens the next pass."""
     expert, scene = _expert(num_frames=30, start_duration=10, grow_from=0, grow_every=50, interval=10)
@@ -162,15 +207,20 @@ def test_invisible_and_thin_pruning_runs_once_per_pass_over_the_trained_views():
     for step in range(1, 200):
         expert.select_views(step, scene.train, 1, g)
     per_frame = len(scene.train) // 30  # 4 cameras
-    # frames 0-9 (40 views) for two passes; 0-19 (80) once grown at 50; 0-29 (120) once grown at 100
-    assert starts == [1, 1 + 10 * per_frame, 1 + 20 * per_frame, 1 + 20 * per_frame + 20 * per_frame]
-    assert int(expert.pass_left) == starts[-1] + 30 * per_frame - 200
+    # frames 0-10 (44 views) for three passes, the third grown at 100 mid-pass; then 0-20 (84)
+    assert starts == [1, 1 + 11 * per_frame, 1 + 22 * per_frame, 1 + 33 * per_frame]
+    assert int(expert.pass_left) == starts[-1] + 21 * per_frame - 200
 
 
-def test_pruning_waits_for_a_pass_start_after_prune_from_and_stops_with_densification():
-    """Pruning stops with densification (a deviation: the original's ``train.py:237`` sits outside its
-    ``densify_until_iter`` block) and masks the statistics of the survivors instead of restarting them
-    (``prune_points``)."""
+def test_select_views_refuses_another_view_list():
+    expert, scene = _expert()
+    with pytest.raises(ValueError, match="built for 12 training views, select_views got 11"):
+        expert.select_views(1, scene.train[:-1], 1, torch.Generator())
+
+
+def test_pruning_waits_for_a_pass_start_after_prune_from_and_outlasts_densification():
+    """Pruning sits outside the original's densification block (``train.py:203`` vs ``237``) and masks the
+    statistics of the survivors instead of restarting them (``prune_points``)."""
     expert, scene = _expert(num_frames=3)
     strategy = expert.config.strategy
     strategy.prune_from, strategy.densify_from, strategy.densify_until = 5, 10**9, 20  # no densification
@@ -197,9 +247,21 @@ def test_pruning_waits_for_a_pass_start_after_prune_from_and_stops_with_densific
     assert torch.equal(state["grad2d"], accumulated[10:])
     assert torch.equal(state["max_radii"], accumulated[10:])
     s["err_min_time"][:5] = -1.0
-    strategy.start_pass(20)  # at densify_until: the block is over
+    strategy.start_pass(20)  # at densify_until: densification is over, pruning goes on
     strategy.step_post_backward(s, optimizers, state, 20, {"renders": [], "views": []})
-    assert s["means"].shape[0] == n - 10
+    assert s["means"].shape[0] == n - 15
+
+
+def test_the_last_step_starts_no_pruning_pass():
+    """``train.py:237``: ``iteration < opt.iterations``; the expert reports no pass at the last step."""
+    expert, scene = _expert(num_frames=3)
+    expert.config.train = TrainConfig(iterations=13)
+    starts = []
+    expert.config.strategy.start_pass = starts.append
+    g = torch.Generator().manual_seed(0)
+    for step in range(1, 14):
+        expert.select_views(step, scene.train, 1, g)
+    assert starts == [1]  # 12 views a pass: the second pass starts at the last step, 13
 
 
 def test_far_plane_culls_beyond_it_in_renders_and_shared_passes():
@@ -293,3 +355,23 @@ def test_trains_on_tiny_scene():
     result = train(expert, scene, progress=False)
     assert result["completed"] and math.isfinite(result["final_loss"]) and result["test"]["psnr"] > 14.0
     assert float(expert.splats["err_count"].max()) > 0
+
+
+def test_an_interrupted_run_resumes_the_view_stack_and_schedule_exactly(tmp_path):
+    """The stack, the pass counter and the armed conversion are checkpointed with the model, so a run
+    stopped mid-pass (12 views a pass, stopped at 17) and resumed ends bit for bit as an uninterrupted one."""
+    from moegs.train.loop import train
+
+    def run(out, **kw):
+        expert, scene = _expert(num_frames=3)
+        expert.config.train = TrainConfig(iterations=30, lambda_dssim=0.2, checkpoint_every=10)
+        return expert, train(expert, scene, out_dir=tmp_path / out, progress=False, **kw)
+
+    full, _ = run("full")
+    run("part", stop_after=17)
+    resumed, result = run("part")
+    assert result["resumed_from"] == 17 and result["completed"]
+    a, b = full.state_dict(), resumed.state_dict()
+    assert a.keys() == b.keys() and "view_stack" in a
+    for key in a:
+        assert torch.equal(a[key], b[key]), key
