@@ -2,7 +2,8 @@
 
 Two disjoint sets of Gaussians, kept here in one set of per-Gaussian tensors with a ``dynamic`` flag:
 
-* static: ``x(t) = x + d t / D_cur`` (a linear drift ``d`` over the current progressive duration);
+* static: ``x(t) = x + d t / D`` (a linear drift ``d`` over the model's duration ``D``: one more than the
+  last frame trained so far);
 * dynamic: ``K`` keyframes every ``I`` frames. With ``u = t + τs``, ``k = ⌊u / I⌋``, ``δ = (u mod I) / I``
   the position is the cubic Hermite curve through ``P_k, P_{k+1}`` with Catmull-Rom tangents
   ``m_k = (P_{k+1} - P_{k-1}) / 2``, the rotation ``slerp(Q_k, Q_{k+1}, δ)`` and the opacity
@@ -10,8 +11,9 @@ Two disjoint sets of Gaussians, kept here in one set of per-Gaussian tensors wit
 
 Time is the integer frame index (``(t - t_first) / frame_step`` of the normalised scene time). Training
 starts static on frames ``0..start_duration`` and grows by ``I`` frames every ``grow_every`` iterations,
-drawing its views from a shuffled stack of the trained frames' views; at the first view of the newest
-frames after each growth and after ``make_dynamic_interval`` more iterations, and every
+up to ``τs`` frames past the last one, drawing its views from a shuffled stack of the trained frames'
+views; at the first view of the newest frames after each growth that adds keyframes and after
+``make_dynamic_interval`` more iterations, and every
 ``extract_every`` iterations until the densification ends, the static Gaussians that drift most
 relative to their distance to the camera become dynamic. A per-Gaussian
 error is accumulated by back-tracking the per-pixel L1 / SSIM maps through the splatting weights
@@ -129,6 +131,12 @@ def keyframe_count(duration: float, shift: float, interval: int) -> int:
     return math.ceil((duration + 2 * shift + 1) / interval) + 3
 
 
+def grown_keyframe_count(model_duration: int, shift: float, time_pad: int, interval: int) -> int:
+    """Keyframes a growth to ``model_duration`` requires (``expand_duration``'s ``require_dim``:
+    ``⌈(D + τs + 2 pad + 1) / I⌉ + 3``, not the first extraction's formula)."""
+    return math.ceil((model_duration + shift + 2 * time_pad + 1) / interval) + 3
+
+
 def initial_keyframes(x: Tensor, d: Tensor, interval: int, duration: float, count: int) -> Tensor:
     """Keyframes of converted static Gaussians: the two points ``x - d I / D`` and ``x + d (1 + I / D)``
     linearly resized to ``count`` samples (``F.interpolate``, ``align_corners=False``, as the original).
@@ -178,10 +186,10 @@ class Ex4DGSConfig(ExpertConfig):
     grow_every: int = 400
     """Iterations between growths by ``interval`` frames (``progressive_growing_steps``, N3V 400)."""
     make_dynamic_interval: int = 100
-    """Arms a conversion at this offset into a growth period while ``need_extract`` holds: after each growth,
-    and once before the first (it starts true) (``make_dynamic_interval``: N3V and every Technicolor config
-    100, ``configs/N3V/n3v_base.json:27``; ``train.py:257-259``; the ``~need_extract`` of ``:262`` is always
-    true)."""
+    """Arms a conversion at this offset into a growth period while ``need_extract`` holds: after each growth
+    that adds keyframes, and once before the first conversion (it starts true) (``make_dynamic_interval``:
+    N3V and every Technicolor config 100, ``configs/N3V/n3v_base.json:27``; ``train.py:257-259, 269-274``;
+    the ``~need_extract`` of ``:262`` is always true)."""
     extract_every: int = 3980
     """Extra static-to-dynamic conversions with the step's view while a time bin has errors
     (``extracton_interval``, N3V 3980), only while densifying and not at a densification step (the
@@ -541,9 +549,12 @@ class Ex4DGSExpert(Expert):
         self.register_buffer("view_stack", torch.zeros(num_views, dtype=torch.long))  # shuffled pass
         self.register_buffer("pass_left", torch.tensor(0))  # views of view_stack[:pass_left] left to draw
         self.register_buffer("convert_newest", torch.tensor(False))  # ``mark_last``
+        self.register_buffer("pending_view", torch.tensor(-1))  # ``mark_extract``: converts after its step
+        self.register_buffer("keyframes", torch.tensor(0))  # ``keyframe_num``: 0 until the first conversion
         self.register_buffer("bin_errors", torch.zeros(math.ceil(num_frames / config.interval), 2))
         self.active_sh_degree = 0
         self._probe: tuple[Tensor, Tensor, float] | None = None  # (probe image, per-Gaussian probe, frame)
+        self._view_frames: tuple[list[View], Tensor] | None = None  # (views, each one's frame)
 
     @classmethod
     def from_scene(cls, scene: Scene, config: Ex4DGSConfig) -> Ex4DGSExpert:
@@ -551,7 +562,11 @@ class Ex4DGSExpert(Expert):
         step = float((times[1:] - times[:-1]).median()) if len(times) > 1 else 1.0
         points = thin_points(scene_points(scene), config.max_init_points, config.train.seed)
         n = len(points)
-        k = keyframe_count(scene.num_frames, config.shift, config.interval)
+        last = scene.num_frames + config.shift  # the longest sampling length (growths stop there)
+        k = max(  # room for the most keyframes a conversion or a growth can ask for
+            keyframe_count(last, config.shift, config.interval),
+            grown_keyframe_count(last + 1, config.shift, config.time_pad, config.interval),
+        )
         stats = {
             "err_sum": torch.zeros(n),
             "ssim_sum": torch.zeros(n),
@@ -589,11 +604,16 @@ class Ex4DGSExpert(Expert):
         """Integer-frame time of normalised scene time ``t`` (Ex4DGS ``timestamp = j - start``)."""
         return (t - self.first_time) / self.frame_step
 
+    def model_duration(self) -> int:
+        """The Gaussians' ``duration``: one more than the sampling length ``duration`` (``expand_duration``
+        stores ``int(sample_len) + 1``, from the call before training, ``train.py:75``)."""
+        return int(self.duration) + 1
+
     # -- rendering ---------------------------------------------------------------------------------------
     def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
         s, c = self.splats, self.config
         f = self.frame_index(t)
-        means = s["means"] + s["drift"] * f / self.duration
+        means = s["means"] + s["drift"] * f / self.model_duration()
         quats = nn.functional.normalize(s["quats"], dim=-1)
         opacities = torch.sigmoid(s["opacities"])
         idx = s["dynamic"].nonzero(as_tuple=True)[0]
@@ -701,45 +721,59 @@ class Ex4DGSExpert(Expert):
     def select_views(
         self, step: int, views: list[View], batch_size: int, generator: torch.Generator
     ) -> list[int]:
-        """Progressive schedule (``train.py:115-124, 224-283``).
+        """Progressive schedule (``train.py:115-129, 224-283``).
 
         Views are popped from a shuffled stack of the views of the frames trained so far (frame index up
-        to the duration, inclusive: ``scene/__init__.py:271``); an empty stack is refilled, which starts a
-        pass (the strategy's pruning clock). The duration grows by ``interval`` frames every
-        ``grow_every`` iterations after ``max(grow_from, grow_every)``; each growth, and the step
-        ``make_dynamic_interval`` into the next period (also before the first growth), arms a conversion
-        that fires with the first popped view of the newest ``interval`` frames. While
-        densifying, every ``extract_every`` iterations that are not densification steps convert with the
-        popped view when a time bin has recorded errors (the original's ``candidate`` time is unused by
-        the conversion). Deviation: growths and conversions act before their step's render; the original
-        grows and converts after the step's update (the worst-bin conversion after its render).
+        to the sampling length ``duration``, inclusive: ``scene/__init__.py:271``); an empty stack is
+        refilled, which starts a pass (the strategy's pruning clock). A conversion armed by the previous
+        steps (``_end_of_step``) is due at the first popped view of the newest ``interval`` frames, and
+        runs after that step's update. While densifying, every ``extract_every`` iterations that are not
+        densification steps convert with the popped view when a time bin has recorded errors (the
+        original's ``candidate`` time is unused by the conversion). Deviation: that conversion acts before
+        its step's render; the original runs it after the step's backward, and its update then skips the
+        replaced tensors.
         """
         c = self.config
-        if len(views) != self.view_stack.numel():
-            built = self.view_stack.numel()
-            raise ValueError(f"Ex4DGS was built for {built} training views, select_views got {len(views)}")
-        if step > c.grow_from and step % c.grow_every == c.make_dynamic_interval and bool(self.need_extract):
-            self.convert_newest.fill_(True)
-            self.need_extract.fill_(False)
-        if (
-            step > max(c.grow_from, c.grow_every)
-            and step % c.grow_every == 0
-            and int(self.duration) < self.num_frames
-        ):
-            self._grow(min(int(self.duration) + c.interval, self.num_frames))
-            self.convert_newest.fill_(True)
-            self.need_extract.fill_(True)
-        frames = torch.tensor([round(self.frame_index(v.camera.time)) for v in views])  # views sit on frames
+        frames = self._frames(views)
+        self._end_of_step(step - 1, views)
         picked = [self._pop(step, frames, generator) for _ in range(batch_size)]
         newest = [i for i in picked if int(frames[i]) >= float(self.duration) - c.interval]
         if bool(self.convert_newest) and newest:
-            self.convert(views[newest[0]].camera)
+            self.pending_view.fill_(newest[0])
             self.convert_newest.fill_(False)
         if self._extracts(step):
             mean = self.bin_errors[:, 0] / self.bin_errors[:, 1].clamp_min(1)
             self.bin_errors[int(mean.argmax())] = 0  # ``get_errorneous_timestamp`` drops the worst bin
             self.convert(views[picked[0]].camera)
         return picked
+
+    def _frames(self, views: list[View]) -> Tensor:
+        """Each training view's frame index ``[V]`` (views sit on frames); computed once per view list."""
+        if len(views) != self.view_stack.numel():
+            built = self.view_stack.numel()
+            raise ValueError(f"Ex4DGS was built for {built} training views, select_views got {len(views)}")
+        if self._view_frames is None or self._view_frames[0] is not views:
+            frames = torch.tensor([round(self.frame_index(v.camera.time)) for v in views])
+            self._view_frames = (views, frames)
+        return self._view_frames[1]
+
+    def _end_of_step(self, step: int, views: list[View]) -> None:
+        """What the original does after ``step``'s update (``train.py:257-279``), run before the next step
+        draws its views: at ``make_dynamic_interval`` into a growth period while ``need_extract`` holds,
+        arm a conversion; every ``grow_every`` iterations after ``max(grow_from, grow_every)``, grow, and
+        arm one (and ``need_extract``) when the growth added keyframes; run the due conversion with its
+        view. The last step's is never run: in the original it acts on the saved model only if a growth
+        or conversion falls on that step."""
+        c = self.config
+        if step > c.grow_from and step % c.grow_every == c.make_dynamic_interval and bool(self.need_extract):
+            self.convert_newest.fill_(True)
+            self.need_extract.fill_(False)
+        if step > max(c.grow_from, c.grow_every) and step % c.grow_every == 0 and self._grow():
+            self.convert_newest.fill_(True)
+            self.need_extract.fill_(True)
+        if int(self.pending_view) >= 0:
+            self.convert(views[int(self.pending_view)].camera)
+            self.pending_view.fill_(-1)
 
     def _pop(self, step: int, frames: Tensor, generator: torch.Generator) -> int:
         """The next view of the stack (``frames [V]``: each view's frame); refills it when empty."""
@@ -770,15 +804,34 @@ class Ex4DGSExpert(Expert):
         )
 
     @torch.no_grad()
-    def _grow(self, duration: int) -> None:
-        """Extend the trained frames; dynamic keyframes past the old range are re-extrapolated."""
+    def _grow(self) -> bool:
+        """Extend the sampling length by ``interval`` frames, up to ``τs`` past the last frame
+        (``train.py:263-268``), and the model's duration with it (``expand_duration``). Returns whether
+        keyframes were added, which needs dynamic Gaussians and a higher ``grown_keyframe_count``: the new
+        ones extrapolate the mean step of the last ``min(K - 2, 4)``; a right temporal width whose centre
+        (plus ``τs / I``, as the original) lies within half a keyframe of the new end becomes 1, and the
+        centres are clamped to the old duration's last keyframe time."""
         c, s = self.config, self.splats
-        valid = keyframe_count(float(self.duration), c.shift, c.interval)
+        length = min(self.num_frames + c.shift, int(self.duration) + c.interval)
+        if length <= int(self.duration):
+            return False
+        old = self.model_duration()
+        self.duration.fill_(float(length))
+        new = self.model_duration()
+        have, need = int(self.keyframes), grown_keyframe_count(new, c.shift, c.time_pad, c.interval)
         idx = s["dynamic"].nonzero(as_tuple=True)[0]
-        if idx.numel():
-            s["motion_means"].data[idx] = extrapolate_keyframes(s["motion_means"].data[idx], valid)
-            s["motion_quats"].data[idx] = extrapolate_keyframes(s["motion_quats"].data[idx], valid)
-        self.duration.fill_(float(duration))
+        if not idx.numel() or need <= have:
+            return False
+        average = min(have - 2, 4)
+        for key in ("motion_means", "motion_quats"):
+            s[key].data[idx] = extrapolate_keyframes(s[key].data[idx], have, average)
+        centers, widths = s["centers"].data[idx], s["widths"].data[idx]
+        near_end = (centers + c.shift / c.interval > (new + c.shift) / c.interval - 0.5).any(dim=1)
+        widths[:, 1] = torch.where(near_end, torch.ones_like(widths[:, 1]), widths[:, 1])
+        s["widths"].data[idx] = widths
+        s["centers"].data[idx] = centers.clamp_max((c.shift + old - 1) / c.interval)
+        self.keyframes.fill_(need)
+        return True
 
     @torch.no_grad()
     def convert(self, camera: Camera) -> int:
@@ -790,6 +843,9 @@ class Ex4DGSExpert(Expert):
         ``||d|| > 1e-6 extent`` and a back-tracked best frame become dynamic.
         """
         c, s = self.config, self.splats
+        duration = max(float(self.duration), float(c.interval))
+        if int(self.keyframes) == 0:  # set by the first conversion, whatever it converts; growths extend it
+            self.keyframes.fill_(keyframe_count(duration, c.shift, c.interval))
         out = rasterize(
             self.frame(camera.time, camera).detach(),
             clip_camera(camera, c.near, c.far),
@@ -808,9 +864,7 @@ class Ex4DGSExpert(Expert):
         idx = chosen.nonzero(as_tuple=True)[0]
         if not idx.numel():
             return 0
-        duration = max(float(self.duration), float(c.interval))
-        total = s["motion_means"].shape[1]
-        valid = min(keyframe_count(duration, c.shift, c.interval), total)
+        total, valid = s["motion_means"].shape[1], int(self.keyframes)
         keys = initial_keyframes(s["means"][idx], s["drift"][idx], c.interval, duration, valid)
         keys = torch.cat([keys, keys.new_zeros(len(idx), total - valid, 3)], dim=1)  # filled by extrapolation
         t = s["err_min_time"][idx]

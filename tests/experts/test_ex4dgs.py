@@ -14,6 +14,7 @@ from moegs.experts.ex4dgs import (
     Ex4DGSStrategy,
     catmull_rom,
     extrapolate_keyframes,
+    grown_keyframe_count,
     initial_keyframes,
     keyframe_count,
     keyframe_position,
@@ -91,13 +92,17 @@ def _expert(num_frames=3, **overrides) -> tuple[Ex4DGSExpert, object]:
     return Ex4DGSExpert.from_scene(scene, config), scene
 
 
-def test_static_drift_over_the_current_duration():
+def test_static_drift_over_the_model_duration():
+    """``get_static_xyz_at_t``: ``x + d t / D`` with the Gaussians' duration, which ``expand_duration``
+    (called before training, ``train.py:75``) sets one past the sampling length: 3 for ``start_duration``
+    2."""
     expert, scene = _expert(num_frames=5, start_duration=2)
     with torch.no_grad():
         expert.splats["drift"].fill_(1.0)
     frame_time = scene.train[-1].camera.time  # frame 4
     means = expert.frame(frame_time).means
-    assert torch.allclose(means, expert.splats["means"] + 4.0 / 2.0)
+    assert expert.model_duration() == 3
+    assert torch.allclose(means, expert.splats["means"] + 4.0 / 3.0)
 
 
 def test_conversion_uses_drift_over_squared_distance_and_best_frame():
@@ -148,29 +153,85 @@ def test_views_are_popped_from_a_shuffled_stack_of_the_trained_frames():
     assert passes[0] != passes[1] and passes[0] != eligible  # shuffled anew each pass
 
 
-def test_growth_arms_a_conversion_that_fires_with_the_first_view_of_the_newest_frames():
-    """``train.py:126-129, 257-283``: a growth, and the step ``make_dynamic_interval`` into a growth period
-    while ``need_extract`` holds (it starts true), arm a conversion (``mark_last``); it runs with the first
-    popped view whose frame is within ``interval`` of the duration, whatever the batch. The first growth
-    waits for ``iteration > progressive_growing_steps``."""
+def test_growth_arms_a_conversion_that_runs_after_the_step_of_the_first_view_of_the_newest_frames():
+    """``train.py:126-129, 257-283``, after each step's update: a growth that adds keyframes, and the step
+    ``make_dynamic_interval`` into a growth period while ``need_extract`` holds (it starts true), arm a
+    conversion (``mark_last``); it is due at the first popped view whose frame is within ``interval`` of the
+    sampling length, whatever the batch, and runs after that step (here: before the next step's views).
+    The first growth waits for ``iteration > progressive_growing_steps``; growths go on to ``τs`` frames
+    past the last one."""
     expert, scene = _expert(num_frames=30, start_duration=10, grow_from=0, grow_every=5, interval=10)
-    expert.config.make_dynamic_interval, expert.config.extract_every = 2, 0
+    c = expert.config
+    c.make_dynamic_interval, c.extract_every = 2, 0
+    assert (c.time_pad, c.shift) == (2, 12)
+    with torch.no_grad():  # some dynamic Gaussians with the first conversion's keyframes at length 10
+        expert.splats["dynamic"][:4] = True
+    expert.keyframes.fill_(keyframe_count(10, c.shift, c.interval))
+    assert int(expert.keyframes) == 7  # ⌈(10 + 24 + 1) / 10⌉ + 3
     cameras = _recording_conversions(expert)
     g = torch.Generator().manual_seed(0)
-    durations, converted, expected, armed = {}, [], [], False
+    lengths, keyframes, converted, expected, due, armed = {}, {}, [], [], None, False
     for step in range(1, 41):
         picks = expert.select_views(step, scene.train, 2, g)
-        durations[step] = float(expert.duration)
-        armed = armed or step in (2, 10, 12, 15, 17)  # by hand: 2 % 5 == 2 before any growth; grown at 10, 15
-        newest = [i for i in picks if _frame(expert, scene.train[i]) >= durations[step] - 10]
+        lengths[step], keyframes[step] = float(expert.duration), int(expert.keyframes)
+        if due is not None:
+            expected.append(step)  # the view of step - 1, converted after that step
+            assert cameras[-1] is scene.train[due].camera
+            due = None
+        # by hand, at the end of step: 2 (2 % 5, need_extract starts true); the growths of 15 (model
+        # duration 31: ⌈(31 + 12 + 4 + 1) / 10⌉ + 3 = 8 > 7 keyframes) and 20 (41: 9), not those of 10
+        # (21: 7) and 25 (to 42 = 30 + τs; 43: 9); 17 and 22 (need_extract set again by those growths)
+        armed = armed or (step - 1) in (2, 15, 17, 20, 22)
+        newest = [i for i in picks if _frame(expert, scene.train[i]) >= lengths[step] - 10]
         if armed and newest:
-            expected.append(step)
-            armed = False
+            due, armed = newest[0], False
         if len(cameras) > len(converted):
             converted.append(step)
-            assert cameras[-1] is scene.train[newest[0]].camera
-    assert [durations[s] for s in (9, 10, 14, 15, 40)] == [10, 20, 20, 30, 30]
-    assert converted == expected and converted[0] == 2
+    assert [lengths[s] for s in (10, 11, 16, 21, 26, 31, 40)] == [10, 20, 30, 40, 42, 42, 42]
+    assert [keyframes[s] for s in (11, 16, 21, 26)] == [7, 8, 9, 9]
+    assert converted == expected and converted[0] == 4  # armed after step 2, due with step 3's view
+
+
+def test_growth_extrapolates_keyframes_and_adjusts_the_temporal_opacity_like_expand_duration():
+    """``expand_duration`` (``c_gaussian_model.py:1243-1297``): new keyframes continue the mean step of the
+    last ``min(K - 2, 4)``; a right width whose centre plus ``τs / I`` is within half a keyframe of the
+    new end becomes 1; centres are clamped to the old model duration's ``(τs + D - 1) / I``."""
+    expert, scene = _expert(num_frames=30, start_duration=10, grow_from=0, grow_every=5, interval=10)
+    s = expert.splats
+    with torch.no_grad():
+        s["dynamic"][:2] = True
+        steps = torch.arange(s["motion_means"].shape[1], dtype=torch.float)
+        s["motion_means"][:2] = steps[None, :, None] * torch.tensor([1.0, 2.0, 3.0])  # a straight line
+        s["motion_means"][:2, 7:] = 99.0  # beyond the 7 keyframes: to be replaced
+        s["centers"][:2] = torch.tensor([[1.5, 2.0], [1.5, 4.0]])
+        s["widths"][:2] = torch.tensor([[5.0, 6.0], [5.0, 6.0]])
+    expert.keyframes.fill_(7)
+    expert.duration.fill_(20.0)  # model duration 21
+    assert expert._grow()  # length 30, model duration 31: 8 keyframes
+    assert float(expert.duration) == 30 and int(expert.keyframes) == 8
+    assert s["motion_means"][0, :, 0].tolist() == steps.tolist()  # the line goes on
+    # right widths: 2.0 + 1.2 = 3.2 is not > (31 + 12) / 10 - 0.5 = 3.8; 4.0 + 1.2 is
+    assert s["widths"][:2].tolist() == [[5.0, 6.0], [5.0, 1.0]]
+    # centres clamped to (12 + 21 - 1) / 10 = 3.2
+    assert s["centers"][:2].flatten().tolist() == pytest.approx([1.5, 2.0, 1.5, 3.2])
+    assert not bool(s["dynamic"][2:].any()) and s["widths"][2:].eq(0).all()  # static ones untouched
+
+
+def test_a_growth_without_dynamic_gaussians_only_extends_the_duration():
+    expert, scene = _expert(num_frames=30, start_duration=10, interval=10)
+    assert not expert._grow() and float(expert.duration) == 20 and int(expert.keyframes) == 0
+
+
+def test_the_first_conversion_sets_the_keyframe_count_even_when_it_converts_nothing():
+    """``extract_dynamic_points_from_static`` sets ``keyframe_num`` before it knows what it converts."""
+    expert, scene = _expert(num_frames=30, start_duration=10, interval=10)
+    assert expert.convert(scene.train[0].camera) == 0  # nothing drifts
+    assert int(expert.keyframes) == keyframe_count(10, expert.config.shift, 10)
+
+
+def test_grown_keyframe_count_is_expand_durations_require_dim():
+    assert grown_keyframe_count(31, shift=12, time_pad=2, interval=10) == math.ceil(48 / 10) + 3
+    assert grown_keyframe_count(313, shift=12, time_pad=2, interval=10) == 36  # N3V's last growth
 
 
 def test_interval_extraction_converts_with_the_step_view_only_while_densifying_between_densifications():
