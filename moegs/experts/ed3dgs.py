@@ -58,6 +58,14 @@ _HEAD_DIMS = {"means": 3, "scales": 3, "quats": 4, "opacities": 1}
 
 
 # -- formulas ----------------------------------------------------------------------------------------
+def consecutive_pairs(count: int, batch_size: int, generator: torch.Generator) -> list[int]:
+    """E-D3DGS's monocular batch (``train.py:110-113``): ``max(B // 2, 1)`` draws ``f`` from
+    ``0..⌈count / 2⌉ - 1`` with repetition, then images ``2f`` of every draw and ``2f + 1`` of every draw,
+    modulo ``count``: ``2 max(B // 2, 1)`` indices."""
+    draws = torch.randint(math.ceil(count / 2), (max(batch_size // 2, 1),), generator=generator).tolist()
+    return [2 * f % count for f in draws] + [(2 * f + 1) % count for f in draws]
+
+
 def sample_rows(table: Tensor, u: Tensor) -> Tensor:
     """Linear interpolation between the rows of ``table [K, C]`` at normalised positions ``u [...]``.
 
@@ -276,6 +284,10 @@ class ED3DGSConfig(ExpertConfig):
     """Weight of ``(1 - SSIM) / 2`` on the multi-view SSIM iterations (``lambda_dssim``; HyperNeRF 0)."""
     random_until: int = 10_000
     """Uniform frames until here; afterwards odd iterations sample frames by error (multi-view only)."""
+    consecutive_pairs: bool = False
+    """Monocular batches of consecutive training images: ``max(B // 2, 1)`` random ``f`` (with repetition),
+    images ``2f`` then ``2f + 1`` modulo their count (``loader == 'nerfies'``, ``train.py:110-113``; the
+    HyperNeRF recipe); off, monocular batches come from the default sampler."""
     multiview_ssim_iters: int = 5
     """After ``random_until``, the first this many iterations of every 50 reuse one frame and add D-SSIM."""
     strategy: Strategy = field(
@@ -397,8 +409,8 @@ class ED3DGSConfig(ExpertConfig):
     @classmethod
     def paper_hypernerf(cls) -> ED3DGSConfig:
         """``arguments/hypernerf/default.py`` over ``arguments/__init__.py`` (defaults of the fields the
-        vrig configs leave alone; they set knots and schedule lengths per scene). Deviation: the original's
-        batch of 2 is a pair of consecutive training images (``train.py:110-113``); here 2 random views."""
+        vrig configs leave alone; they set knots and schedule lengths per scene); its batch of 2 is a pair
+        of consecutive training images (``train.py:110-113``), in the loader's order."""
         return cls(
             depth=0,  # :7
             deform=("means", "scales", "quats"),  # :9-11 (no_do, no_dc)
@@ -412,6 +424,7 @@ class ED3DGSConfig(ExpertConfig):
             temporal_tv=1e-4,  # :62
             lambda_ssim=0.0,  # :57
             multiview_ssim_iters=0,  # :58
+            consecutive_pairs=True,  # ModelParams loader "nerfies" (:2)
             strategy=ADCStrategy(
                 densify_from=500,  # :25-26
                 densify_until=15_000,  # arguments/__init__.py:128
@@ -446,6 +459,8 @@ class ED3DGSConfig(ExpertConfig):
             "strategy.densify_until": int(QUICK_ITERATIONS * 0.75),  # the last densified Gaussians train
             "strategy.densify_every": 100,  # the original interval (see static.QUICK_DENSIFY)
             "train.batch_size": 1,  # N3V / HyperNeRF batch 2 (4) -> 1 (CPU cost; one view per step)
+            # a pair would be 2 views a step (max(1 // 2, 1) draws): one view, from the default sampler
+            **({"consecutive_pairs": False} if paper.consecutive_pairs else {}),
         }
 
 
@@ -569,8 +584,11 @@ class ED3DGSExpert(Expert):
     def select_views(
         self, step: int, views: list[View], batch_size: int, generator: torch.Generator
     ) -> list[int] | None:
-        """Multi-view: far-apart cameras, error-guided frames (None on monocular scenes: default sampler)."""
+        """Multi-view: far-apart cameras, error-guided frames. Monocular: consecutive pairs
+        (``consecutive_pairs``), else None (the default sampler)."""
         if self.views is None:
+            if self.config.consecutive_pairs:
+                return consecutive_pairs(len(views), batch_size, generator)
             return None
         return self.views.sample(step, batch_size, self.config, generator)
 

@@ -149,6 +149,8 @@ ROWS = [
     ("ed3dgs", "hypernerf:chicken", "strategy.grad_threshold", 2e-4),  # arguments/hypernerf/default.py:29-30
     ("ed3dgs", "hypernerf:chicken", "temporal_tv", 1e-4),  # arguments/hypernerf/default.py:62
     ("ed3dgs", "hypernerf:chicken", "train.batch_size", 2),  # arguments/hypernerf/default.py:22
+    ("ed3dgs", "hypernerf:chicken", "consecutive_pairs", True),  # default.py:2 loader nerfies; train.py:110
+    ("ed3dgs", "n3v:coffee_martini", "consecutive_pairs", False),  # train.py:114-125 (multi-view sampler)
     # -- STG (oppo-us-research/SpacetimeGaussians) --------------------------------------------------------
     (
         "stg",

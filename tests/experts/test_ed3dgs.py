@@ -14,6 +14,7 @@ from moegs.experts.ed3dgs import (
     ED3DGSConfig,
     ED3DGSExpert,
     buggy_temporal_tv,
+    consecutive_pairs,
     embedding_smoothness,
     knn,
     knots_at,
@@ -158,6 +159,36 @@ def test_sampler_keeps_consecutive_cameras_apart_and_reuses_ssim_frames():
         assert float((a.center - b.center).norm()) >= table.min_distance - 1e-6
     # step % 50 in 0..4 keeps the frame for the next step: steps 50..55 share one frame
     assert len({c.frame for c in cams[49:55]}) == 1
+
+
+def test_monocular_batches_are_consecutive_pairs_of_training_images():
+    """``train.py:110-113``: ``max(B // 2, 1)`` draws of ``f < ⌈n / 2⌉``, images ``2f`` then ``2f + 1``
+    (mod n): with 5 images the pairs are (0, 1), (2, 3) and (4, 0)."""
+    g = torch.Generator().manual_seed(0)
+    pairs = {tuple(consecutive_pairs(5, 2, g)) for _ in range(200)}
+    assert pairs == {(0, 1), (2, 3), (4, 0)}
+    batch = consecutive_pairs(6, 4, g)
+    assert len(batch) == 4 and [i + 1 for i in batch[:2]] == batch[2:]
+    assert len(consecutive_pairs(6, 1, g)) == 2  # a batch of 1 still draws a pair, as the original
+
+
+def test_select_views_pairs_only_monocular_scenes_of_the_pairing_recipe():
+    expert, scene = _expert()
+    g = torch.Generator().manual_seed(0)
+    assert expert.views is not None and len(expert.select_views(1, scene.train, 2, g)) == 2  # multi-view
+    expert.views = None  # a monocular scene's expert has no multi-view table
+    assert expert.select_views(1, scene.train, 2, g) is None  # the default sampler
+    expert.config.consecutive_pairs = True
+    a, b = expert.select_views(1, scene.train, 2, g)
+    assert b == (a + 1) % len(scene.train) and a % 2 == 0
+
+
+def test_quick_keeps_one_view_a_step_on_hypernerf():
+    from moegs.recipes import config_for
+
+    assert config_for("ed3dgs", "hypernerf:chicken", "paper").config.consecutive_pairs
+    quick = config_for("ed3dgs", "hypernerf:chicken", "quick").config
+    assert not quick.consecutive_pairs and quick.train.batch_size == 1
 
 
 def test_error_guided_frames_prefer_high_error():
