@@ -793,7 +793,7 @@ class Ex4DGSExpert(Expert):
         a densification step, inside ``iteration < densify_until_iter``)."""
         c, strategy = self.config, self.config.strategy
         adc = isinstance(strategy, ADCStrategy)
-        densifies = adc and step > strategy.densify_from and step % strategy.densify_every == 0
+        densifies = adc and strategy.densifies(step)
         return bool(
             c.extract_every
             and step > c.grow_from

@@ -149,7 +149,7 @@ class FourDGSStrategy(ADCStrategy):
         if local >= self.densify_until:
             return
         self._update_stats(params, state, info)
-        densify = local > self.densify_from and local % self.densify_every == 0
+        densify = self.densifies(local)
         if densify and self._count(params) < self.densify_below:
             self._densify(params, optimizers, state)
         prune = local > self.prune_from and local % self.prune_every == 0

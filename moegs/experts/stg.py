@@ -408,7 +408,7 @@ class STGStrategy(ADCStrategy):
             self._remove(params, optimizers, state, params["means"][:, 2] < self.prune_z_below)
         if step < self.densify_until:
             self._update_stats(params, state, info)
-            if step > self.densify_from and step % self.densify_every == 0:
+            if self.densifies(step):
                 if state["events"] < self.max_densify_events:
                     self._clone_and_split(params, optimizers, state)
                     state["events"] += 1

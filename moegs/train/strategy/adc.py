@@ -146,11 +146,15 @@ class ADCStrategy(Strategy):
             "prune": int(prune.sum()),
         }
 
+    def densifies(self, step: int) -> bool:
+        """Whether ``step`` (inside the densification window) is a densification step."""
+        return step > self.densify_from and step % self.densify_every == 0
+
     def step_post_backward(self, params, optimizers, state, step: int, info: dict) -> None:
         if step >= self.densify_until:
             return
         self._update_stats(params, state, info)
-        if step > self.densify_from and step % self.densify_every == 0:
+        if self.densifies(step):
             self._densify_and_prune(params, optimizers, state, step)
         white_start = (
             self.reset_at_densify_from_if_white and state["white_background"] and step == self.densify_from
