@@ -495,18 +495,45 @@ class Ex4DGSStrategy(ADCStrategy):
             params[key].data.fill_(FRESH[key])
 
     def __post_init__(self) -> None:
-        self._pass_start = -1  # training state, not config: the step that started the current pass
+        # training state, not config: the step that started the current pass, and the expert (``bind``)
+        self._pass_start = -1
+        self._expert: Ex4DGSExpert | None = None
+
+    def bind(self, expert: Ex4DGSExpert) -> Ex4DGSStrategy:
+        """Run ``expert``'s schedule events in this strategy's step hooks, where the original runs them
+        around the optimiser step (``after_backward``, ``after_update``); returns this strategy."""
+        self._expert = expert
+        return self
 
     def start_pass(self, step: int) -> None:
         """Step ``step`` starts a pass over the training views (the original refills its view stack)."""
         self._pass_start = step
 
     def step_post_backward(self, params, optimizers, state, step: int, info: dict) -> None:
+        """``train.py:203-241`` in order: densification, else the interval conversion; ``adjust_temp_opa``;
+        pruning at a pass start."""
         super().step_post_backward(params, optimizers, state, step, info)
+        if self._expert is not None and self._expert.after_backward(step, optimizers):
+            self._restart_dynamic_stats(params, state)
         if self.prune_from < step and step == self._pass_start:
             seen = params["err_min_time"] >= 0
             thin = params["radius_min"] < self.small_radius
             self._remove_keeping_stats(params, optimizers, state, ~seen | thin)
+
+    def step_post_optimizer(self, params, optimizers, state, step: int, info: dict) -> None:
+        super().step_post_optimizer(params, optimizers, state, step, info)
+        if self._expert is not None and self._expert.after_update(step, optimizers):
+            self._restart_dynamic_stats(params, state)
+
+    @staticmethod
+    def _restart_dynamic_stats(params, state: dict) -> None:
+        """A conversion restarts the dynamic set's densification statistics
+        (``c_gaussian_model.py:1213-1220``)."""
+        if state["grad2d"] is None:
+            return
+        dynamic = params["dynamic"]
+        for key in ("grad2d", "count", "max_radii"):
+            state[key] = state[key].masked_fill(dynamic, 0)
 
 
 def base_opacity(params) -> Tensor:
@@ -549,12 +576,13 @@ class Ex4DGSExpert(Expert):
         self.register_buffer("view_stack", torch.zeros(num_views, dtype=torch.long))  # shuffled pass
         self.register_buffer("pass_left", torch.tensor(0))  # views of view_stack[:pass_left] left to draw
         self.register_buffer("convert_newest", torch.tensor(False))  # ``mark_last``
-        self.register_buffer("pending_view", torch.tensor(-1))  # ``mark_extract``: converts after its step
         self.register_buffer("keyframes", torch.tensor(0))  # ``keyframe_num``: 0 until the first conversion
         self.register_buffer("bin_errors", torch.zeros(math.ceil(num_frames / config.interval), 2))
         self.active_sh_degree = 0
         self._probe: tuple[Tensor, Tensor, float] | None = None  # (probe image, per-Gaussian probe, frame)
         self._view_frames: tuple[list[View], Tensor] | None = None  # (views, each one's frame)
+        self._step_view: View | None = None  # the step's first view: the interval conversion's
+        self._armed_view: View | None = None  # ``mark_extract``: the armed conversion's, after the update
 
     @classmethod
     def from_scene(cls, scene: Scene, config: Ex4DGSConfig) -> Ex4DGSExpert:
@@ -674,22 +702,21 @@ class Ex4DGSExpert(Expert):
         self.active_sh_degree = active_sh_degree(
             step, self.config.sh_degree, self.config.train.sh_degree_interval
         )
-        c = self.config
-        if c.adjust_every and step % c.adjust_every == 0 and step < c.adjust_until:
-            self._adjust_temporal_opacity()
         return False
 
     def observe(self, step: int, view: View, rgb: Tensor, target: Tensor, out: RenderOutput) -> Tensor | None:
         """Back-tracking: the probe image's gradient becomes ``[1, L1, SSIM] / acc`` per pixel, so each
         Gaussian's probe gradient is ``Σ_p w_ip [1, L1_p, SSIM_p] / acc_p``; statistics are updated when it
-        arrives. Also records the view's L1 in its time bin (worst-bin extraction)."""
+        arrives. Also records the view's L1 in its time bin for the interval conversion, which drops the
+        worst bin (the original records the loss, ``train.py:177``; a conversion only needs a bin with
+        errors, and the step's own view has just made one)."""
         if self._probe is None:
             return None
         probe_image, probe, frame = self._probe
         self._probe = None
         with torch.no_grad():
             l1_map = (rgb - target).abs().mean(-1)
-            ssim_pix = ssim_map(rgb.clamp(0, 1), target).mean(-1)
+            ssim_pix = ssim_map(rgb, target).mean(-1)  # unclamped, as the loss (train.py:149-150)
             acc = out.alpha.clamp_min(1e-4)
             weights = torch.stack([torch.ones_like(acc), l1_map, ssim_pix], dim=-1) / acc[..., None]
             b = min(round(frame) // self.config.interval, self.bin_errors.shape[0] - 1)  # frame k - 1e-6 is k
@@ -721,30 +748,21 @@ class Ex4DGSExpert(Expert):
     def select_views(
         self, step: int, views: list[View], batch_size: int, generator: torch.Generator
     ) -> list[int]:
-        """Progressive schedule (``train.py:115-129, 224-283``).
+        """Progressive schedule (``train.py:115-129``).
 
         Views are popped from a shuffled stack of the views of the frames trained so far (frame index up
         to the sampling length ``duration``, inclusive: ``scene/__init__.py:271``); an empty stack is
-        refilled, which starts a pass (the strategy's pruning clock). A conversion armed by the previous
-        steps (``_end_of_step``) is due at the first popped view of the newest ``interval`` frames, and
-        runs after that step's update. While densifying, every ``extract_every`` iterations that are not
-        densification steps convert with the popped view when a time bin has recorded errors (the
-        original's ``candidate`` time is unused by the conversion). Deviation: that conversion acts before
-        its step's render; the original runs it after the step's backward, and its update then skips the
-        replaced tensors.
+        refilled, which starts a pass (the strategy's pruning clock). A conversion armed by an earlier
+        step (``after_update``) is due at the first popped view of the newest ``interval`` frames and runs
+        after this step's update. The step's first view is the interval conversion's (``after_backward``).
         """
-        c = self.config
         frames = self._frames(views)
-        self._end_of_step(step - 1, views)
         picked = [self._pop(step, frames, generator) for _ in range(batch_size)]
-        newest = [i for i in picked if int(frames[i]) >= float(self.duration) - c.interval]
+        newest = [i for i in picked if int(frames[i]) >= float(self.duration) - self.config.interval]
+        self._step_view, self._armed_view = views[picked[0]], None
         if bool(self.convert_newest) and newest:
-            self.pending_view.fill_(newest[0])
+            self._armed_view = views[newest[0]]
             self.convert_newest.fill_(False)
-        if self._extracts(step):
-            mean = self.bin_errors[:, 0] / self.bin_errors[:, 1].clamp_min(1)
-            self.bin_errors[int(mean.argmax())] = 0  # ``get_errorneous_timestamp`` drops the worst bin
-            self.convert(views[picked[0]].camera)
         return picked
 
     def _frames(self, views: list[View]) -> Tensor:
@@ -757,23 +775,53 @@ class Ex4DGSExpert(Expert):
             self._view_frames = (views, frames)
         return self._view_frames[1]
 
-    def _end_of_step(self, step: int, views: list[View]) -> None:
-        """What the original does after ``step``'s update (``train.py:257-279``), run before the next step
-        draws its views: at ``make_dynamic_interval`` into a growth period while ``need_extract`` holds,
-        arm a conversion; every ``grow_every`` iterations after ``max(grow_from, grow_every)``, grow, and
-        arm one (and ``need_extract``) when the growth added keyframes; run the due conversion with its
-        view. The last step's is never run: in the original it acts on the saved model only if a growth
-        or conversion falls on that step."""
+    # -- schedule events, run by the bound strategy (``Ex4DGSStrategy.bind``) -----------------------------
+    # The original rewrites its optimiser's tensors in these events (``replace_tensor_to_optimizer``,
+    # ``cat_tensors_to_optimizer``, ``prune_points``): the rewritten rows' moments restart at zero, and a
+    # tensor rewritten between the backward pass and the update misses that update. ``_restart`` does both.
+    def after_backward(self, step: int, optimizers: dict) -> bool:
+        """After ``step``'s backward pass, before its update (``train.py:224-234``): the interval conversion
+        with the step's view, which rewrites every tensor (the step updates nothing), then
+        ``adjust_temp_opa``, which rewrites the temporal centres and widths. Returns whether it converted."""
+        c = self.config
+        extracts = self._extracts(step)
+        if extracts:
+            mean = self.bin_errors[:, 0] / self.bin_errors[:, 1].clamp_min(1)
+            self.bin_errors[int(mean.argmax())] = 0  # ``get_errorneous_timestamp`` drops the worst bin
+            self._restart(optimizers, rows=self.convert(self._step_view.camera))
+        if c.adjust_every and step % c.adjust_every == 0 and step < c.adjust_until:
+            self._adjust_temporal_opacity(optimizers)
+        return extracts
+
+    def after_update(self, step: int, optimizers: dict) -> bool:
+        """After ``step``'s update (``train.py:257-283``): at ``make_dynamic_interval`` into a growth period
+        while ``need_extract`` holds, arm a conversion; every ``grow_every`` iterations after
+        ``max(grow_from, grow_every)``, grow, and arm one (and ``need_extract``) when the growth added
+        keyframes; run the conversion due at this step with its view, and return whether it ran. The loop
+        skips the last step's update and this with it: in the original, that step's growth or conversion
+        comes after the model is saved."""
         c = self.config
         if step > c.grow_from and step % c.grow_every == c.make_dynamic_interval and bool(self.need_extract):
             self.convert_newest.fill_(True)
             self.need_extract.fill_(False)
-        if step > max(c.grow_from, c.grow_every) and step % c.grow_every == 0 and self._grow():
+        if step > max(c.grow_from, c.grow_every) and step % c.grow_every == 0 and self._grow(optimizers):
             self.convert_newest.fill_(True)
             self.need_extract.fill_(True)
-        if int(self.pending_view) >= 0:
-            self.convert(views[int(self.pending_view)].camera)
-            self.pending_view.fill_(-1)
+        armed, self._armed_view = self._armed_view, None
+        if armed is not None:
+            self._restart(optimizers, rows=self.convert(armed.camera))
+        return armed is not None
+
+    def _restart(self, optimizers: dict, rows: Tensor | None = None, keys: list[str] | None = None) -> None:
+        """Rewrite ``keys`` (default: every tensor) as the original's optimiser does: zero their moments on
+        ``rows [M]`` (None: all rows) and drop their gradients, so an update that follows skips them."""
+        ops.update_params(
+            self.splats,
+            optimizers,
+            lambda key, v: v,
+            lambda key, v: torch.zeros_like(v) if rows is None else v.index_fill(0, rows, 0),
+            keys=keys,
+        )
 
     def _pop(self, step: int, frames: Tensor, generator: torch.Generator) -> int:
         """The next view of the stack (``frames [V]``: each view's frame); refills it when empty."""
@@ -792,25 +840,24 @@ class Ex4DGSExpert(Expert):
         """Whether ``step`` runs the ``extracton_interval`` conversion (``train.py:224-228``: the ``elif`` of
         a densification step, inside ``iteration < densify_until_iter``)."""
         c, strategy = self.config, self.config.strategy
-        adc = isinstance(strategy, ADCStrategy)
-        densifies = adc and strategy.densifies(step)
         return bool(
             c.extract_every
             and step > c.grow_from
             and step % c.extract_every == 0
-            and step < (strategy.densify_until if adc else NEVER)
-            and not densifies
+            and step < strategy.densify_until
+            and not strategy.densifies(step)
             and self.bin_errors[:, 1].any()
         )
 
     @torch.no_grad()
-    def _grow(self) -> bool:
+    def _grow(self, optimizers: dict) -> bool:
         """Extend the sampling length by ``interval`` frames, up to ``τs`` past the last frame
         (``train.py:263-268``), and the model's duration with it (``expand_duration``). Returns whether
         keyframes were added, which needs dynamic Gaussians and a higher ``grown_keyframe_count``: the new
         ones extrapolate the mean step of the last ``min(K - 2, 4)``; a right temporal width whose centre
         (plus ``τs / I``, as the original) lies within half a keyframe of the new end becomes 1, and the
-        centres are clamped to the old duration's last keyframe time."""
+        centres are clamped to the old duration's last keyframe time. The keyframes and temporal
+        opacities restart their moments (``replace_tensor_to_optimizer``)."""
         c, s = self.config, self.splats
         length = min(self.num_frames + c.shift, int(self.duration) + c.interval)
         if length <= int(self.duration):
@@ -831,21 +878,30 @@ class Ex4DGSExpert(Expert):
         s["widths"].data[idx] = widths
         s["centers"].data[idx] = centers.clamp_max((c.shift + old - 1) / c.interval)
         self.keyframes.fill_(need)
+        self._restart(optimizers, keys=["motion_means", "motion_quats", "centers", "widths"])
         return True
 
     @torch.no_grad()
-    def convert(self, camera: Camera) -> int:
-        """Static-to-dynamic conversion (``extract_dynamic_points_from_static``) seen from ``camera``;
-        returns how many Gaussians became dynamic.
-
-        Score of a visible static Gaussian: ``||d|| / ||x - T||²`` (``T`` the world-to-camera translation,
-        as the original), over its maximum; those above the ``extract_percentile`` quantile with
-        ``||d|| > 1e-6 extent`` and a back-tracked best frame become dynamic.
-        """
+    def convert(self, camera: Camera) -> Tensor:
+        """Static-to-dynamic conversion (``extract_dynamic_points_from_static``) of the static Gaussians
+        that ``camera`` sees drift most (``_drifting``); returns their indices ``[M]``. Whatever it
+        converts, the dynamic set's interval statistics restart (``c_gaussian_model.py:1213-1220``)."""
         c, s = self.config, self.splats
         duration = max(float(self.duration), float(c.interval))
         if int(self.keyframes) == 0:  # set by the first conversion, whatever it converts; growths extend it
             self.keyframes.fill_(keyframe_count(duration, c.shift, c.interval))
+        idx = self._drifting(camera)
+        if idx.numel():
+            self._make_dynamic(idx, duration)
+        for key in RESET_AT_DENSIFY:
+            s[key].data[s["dynamic"]] = FRESH[key]
+        return idx
+
+    def _drifting(self, camera: Camera) -> Tensor:
+        """Indices ``[M]`` of the visible static Gaussians whose score ``||d|| / ||x - T||²`` (``T`` the
+        world-to-camera translation, as the original), over its maximum, is above the
+        ``extract_percentile`` quantile, with ``||d|| > 1e-6 extent`` and a back-tracked best frame."""
+        c, s = self.config, self.splats
         out = rasterize(
             self.frame(camera.time, camera).detach(),
             clip_camera(camera, c.near, c.far),
@@ -855,15 +911,17 @@ class Ex4DGSExpert(Expert):
         )
         static = ~s["dynamic"] & out.info["visible"]
         if static.sum() < 2:
-            return 0
+            return static.new_zeros(0, dtype=torch.long)
         drift = s["drift"].norm(dim=-1)
         score = drift / ((s["means"] - camera.world_to_camera[:3, 3]).norm(dim=-1) ** 2 + 1e-6)
         score = score / (score[static].max() + 1e-6)
         threshold = torch.quantile(score[static], c.extract_percentile)
         chosen = static & (score > threshold) & (drift > 1e-6 * self.extent) & (s["err_min_time"] >= 0)
-        idx = chosen.nonzero(as_tuple=True)[0]
-        if not idx.numel():
-            return 0
+        return chosen.nonzero(as_tuple=True)[0]
+
+    def _make_dynamic(self, idx: Tensor, duration: float) -> None:
+        """Keyframes from the drift, temporal opacity from the back-tracked best frame, for ``idx [M]``."""
+        c, s = self.config, self.splats
         total, valid = s["motion_means"].shape[1], int(self.keyframes)
         keys = initial_keyframes(s["means"][idx], s["drift"][idx], c.interval, duration, valid)
         keys = torch.cat([keys, keys.new_zeros(len(idx), total - valid, 3)], dim=1)  # filled by extrapolation
@@ -884,15 +942,12 @@ class Ex4DGSExpert(Expert):
         s["dynamic"][idx] = True
         for key in ("err_min", "err_min_time"):  # new dynamic Gaussians start unseen (cgm:1174-1227)
             s[key].data[idx] = FRESH[key]
-        dynamic = s["dynamic"]
-        for key in RESET_AT_DENSIFY:  # ... and the dynamic set's interval statistics restart
-            s[key].data[dynamic] = FRESH[key]
-        return int(idx.numel())
 
     @torch.no_grad()
-    def _adjust_temporal_opacity(self) -> None:
+    def _adjust_temporal_opacity(self, optimizers: dict) -> None:
         """Ex4DGS ``adjust_temp_opa``: double (at least 1) the width on a side whose centre is within 0.2
-        keyframes of that end of the trained range, clamp the centres inside it, floor widths at 0.5."""
+        keyframes of that end of the trained range, clamp the centres inside it, floor widths at 0.5;
+        both restart their moments (``replace_tensor_to_optimizer``)."""
         c, s = self.config, self.splats
         idx = s["dynamic"].nonzero(as_tuple=True)[0]
         if not idx.numel():
@@ -904,6 +959,7 @@ class Ex4DGSExpert(Expert):
         new[:, 0] = torch.where((centers < lo).any(dim=1), widths[:, 0].clamp_min(1) * 2, widths[:, 0])
         s["widths"].data[idx] = torch.where(widths < 0.5, torch.full_like(widths, 0.5), new)
         s["centers"].data[idx] = centers.clamp(lo, max(lo, hi))
+        self._restart(optimizers, keys=["centers", "widths"])
 
     def regularization(self, step: int, frame: GaussianFrame | None = None) -> Tensor:
         c, s = self.config, self.splats
@@ -936,4 +992,12 @@ class Ex4DGSExpert(Expert):
         return splat_param_groups(s, c, sc, constant, eps=c.optimizer_eps, optimizer=c.optimizer)
 
     def strategy(self) -> Strategy:
-        return self.config.strategy
+        """The config's ``Ex4DGSStrategy``, bound to this expert: its step hooks run the conversions,
+        growths and temporal-opacity adjustments (``after_backward``, ``after_update``)."""
+        strategy = self.config.strategy
+        if not isinstance(strategy, Ex4DGSStrategy):
+            raise ValueError(
+                "Ex4DGS trains with an Ex4DGSStrategy, whose step hooks run its conversions and growth; "
+                f"config.strategy is a {type(strategy).__name__}"
+            )
+        return strategy.bind(self)

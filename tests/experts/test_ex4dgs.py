@@ -7,6 +7,7 @@ import math
 import pytest
 import torch
 from helpers.scenes import tiny_scene
+from torch import Tensor
 
 from moegs.experts.ex4dgs import (
     Ex4DGSConfig,
@@ -24,6 +25,7 @@ from moegs.experts.ex4dgs import (
 from moegs.render import rasterize
 from moegs.train.config import TrainConfig
 from moegs.train.optim import Optimizers
+from moegs.train.strategy import ADCStrategy
 
 
 def test_keyframe_position_and_count():
@@ -113,8 +115,8 @@ def test_conversion_uses_drift_over_squared_distance_and_best_frame():
         s["drift"][:5] = 0.5
         s["err_min_time"][:5] = 1.0
     converted = expert.convert(cam)
-    assert converted >= 1 and bool(s["dynamic"][:5].any()) and int(s["dynamic"].sum()) == converted
-    i = int(s["dynamic"].nonzero()[0])
+    assert converted.numel() >= 1 and torch.equal(s["dynamic"].nonzero()[:, 0], converted)
+    i = int(converted[0])
     c = expert.config
     duration = max(float(expert.duration), c.interval)  # the original's max(max_dur, interval)
     assert s["widths"][i].tolist() == pytest.approx([1.0 + c.time_pad, duration - 1.0 + c.time_pad])
@@ -134,9 +136,14 @@ def _frame(expert, view) -> int:
 
 
 def _recording_conversions(expert) -> list:
-    """Replace ``expert.convert`` by a recorder of the cameras it is called with."""
+    """Replace ``expert.convert`` by a recorder of the cameras it is called with (converting nothing)."""
     cameras = []
-    expert.convert = cameras.append
+
+    def record(camera):
+        cameras.append(camera)
+        return torch.zeros(0, dtype=torch.long)
+
+    expert.convert = record
     return cameras
 
 
@@ -157,7 +164,7 @@ def test_growth_arms_a_conversion_that_runs_after_the_step_of_the_first_view_of_
     """``train.py:126-129, 257-283``, after each step's update: a growth that adds keyframes, and the step
     ``make_dynamic_interval`` into a growth period while ``need_extract`` holds (it starts true), arm a
     conversion (``mark_last``); it is due at the first popped view whose frame is within ``interval`` of the
-    sampling length, whatever the batch, and runs after that step (here: before the next step's views).
+    sampling length, whatever the batch, and runs after that step's update (``after_update``).
     The first growth waits for ``iteration > progressive_growing_steps``; growths go on to ``τs`` frames
     past the last one."""
     expert, scene = _expert(num_frames=30, start_duration=10, grow_from=0, grow_every=5, interval=10)
@@ -170,26 +177,27 @@ def test_growth_arms_a_conversion_that_runs_after_the_step_of_the_first_view_of_
     assert int(expert.keyframes) == 7  # ⌈(10 + 24 + 1) / 10⌉ + 3
     cameras = _recording_conversions(expert)
     g = torch.Generator().manual_seed(0)
-    lengths, keyframes, converted, expected, due, armed = {}, {}, [], [], None, False
+    lengths, keyframes, converted, expected, armed = {}, {}, [], [], False
     for step in range(1, 41):
         picks = expert.select_views(step, scene.train, 2, g)
         lengths[step], keyframes[step] = float(expert.duration), int(expert.keyframes)
+        newest = [i for i in picks if _frame(expert, scene.train[i]) >= lengths[step] - 10]
+        due = None
+        if armed and newest:
+            due, armed = newest[0], False
+        expert.after_update(step, {})
         if due is not None:
-            expected.append(step)  # the view of step - 1, converted after that step
+            expected.append(step)
             assert cameras[-1] is scene.train[due].camera
-            due = None
+        if len(cameras) > len(converted):
+            converted.append(step)
         # by hand, at the end of step: 2 (2 % 5, need_extract starts true); the growths of 15 (model
         # duration 31: ⌈(31 + 12 + 4 + 1) / 10⌉ + 3 = 8 > 7 keyframes) and 20 (41: 9), not those of 10
         # (21: 7) and 25 (to 42 = 30 + τs; 43: 9); 17 and 22 (need_extract set again by those growths)
-        armed = armed or (step - 1) in (2, 15, 17, 20, 22)
-        newest = [i for i in picks if _frame(expert, scene.train[i]) >= lengths[step] - 10]
-        if armed and newest:
-            due, armed = newest[0], False
-        if len(cameras) > len(converted):
-            converted.append(step)
+        armed = armed or step in (2, 15, 17, 20, 22)
     assert [lengths[s] for s in (10, 11, 16, 21, 26, 31, 40)] == [10, 20, 30, 40, 42, 42, 42]
     assert [keyframes[s] for s in (11, 16, 21, 26)] == [7, 8, 9, 9]
-    assert converted == expected and converted[0] == 4  # armed after step 2, due with step 3's view
+    assert converted == expected and converted[0] == 3  # armed after step 2, due with step 3's view
 
 
 def test_growth_extrapolates_keyframes_and_adjusts_the_temporal_opacity_like_expand_duration():
@@ -207,7 +215,7 @@ def test_growth_extrapolates_keyframes_and_adjusts_the_temporal_opacity_like_exp
         s["widths"][:2] = torch.tensor([[5.0, 6.0], [5.0, 6.0]])
     expert.keyframes.fill_(7)
     expert.duration.fill_(20.0)  # model duration 21
-    assert expert._grow()  # length 30, model duration 31: 8 keyframes
+    assert expert._grow({})  # length 30, model duration 31: 8 keyframes
     assert float(expert.duration) == 30 and int(expert.keyframes) == 8
     assert s["motion_means"][0, :, 0].tolist() == steps.tolist()  # the line goes on
     # right widths: 2.0 + 1.2 = 3.2 is not > (31 + 12) / 10 - 0.5 = 3.8; 4.0 + 1.2 is
@@ -219,14 +227,21 @@ def test_growth_extrapolates_keyframes_and_adjusts_the_temporal_opacity_like_exp
 
 def test_a_growth_without_dynamic_gaussians_only_extends_the_duration():
     expert, scene = _expert(num_frames=30, start_duration=10, interval=10)
-    assert not expert._grow() and float(expert.duration) == 20 and int(expert.keyframes) == 0
+    assert not expert._grow({}) and float(expert.duration) == 20 and int(expert.keyframes) == 0
 
 
 def test_the_first_conversion_sets_the_keyframe_count_even_when_it_converts_nothing():
-    """``extract_dynamic_points_from_static`` sets ``keyframe_num`` before it knows what it converts."""
+    """``extract_dynamic_points_from_static`` sets ``keyframe_num`` before it knows what it converts, and
+    restarts the dynamic set's interval statistics whatever it converts
+    (``c_gaussian_model.py:1213-1220``)."""
     expert, scene = _expert(num_frames=30, start_duration=10, interval=10)
-    assert expert.convert(scene.train[0].camera) == 0  # nothing drifts
+    s = expert.splats
+    with torch.no_grad():
+        s["dynamic"][:2] = True
+        s["err_sum"].fill_(1.0)
+    assert expert.convert(scene.train[0].camera).numel() == 0  # nothing drifts
     assert int(expert.keyframes) == keyframe_count(10, expert.config.shift, 10)
+    assert s["err_sum"][:2].eq(0).all() and s["err_sum"][2:].eq(1).all()
 
 
 def test_grown_keyframe_count_is_expand_durations_require_dim():
@@ -236,8 +251,8 @@ def test_grown_keyframe_count_is_expand_durations_require_dim():
 
 def test_interval_extraction_converts_with_the_step_view_only_while_densifying_between_densifications():
     """``train.py:203, 224-228``: every ``extracton_interval`` iterations, while densifying but not at a
-    densification step (the ``elif``), a time bin with errors converts with the popped view and is
-    dropped (``get_errorneous_timestamp``)."""
+    densification step (the ``elif``), a time bin with errors converts with the popped view after the
+    backward pass and is dropped (``get_errorneous_timestamp``)."""
     expert, scene = _expert(num_frames=3, grow_from=0, grow_every=10**6, interval=1)  # a bin a frame
     expert.config.extract_every, expert.config.make_dynamic_interval = 4, 0  # no growth, nothing armed
     strategy = expert.config.strategy
@@ -249,11 +264,126 @@ def test_interval_extraction_converts_with_the_step_view_only_while_densifying_b
     at = {}
     for step in range(1, 21):
         (i,) = expert.select_views(step, scene.train, 1, g)
+        expert.after_backward(step, {})
         if len(cameras) > len(at):
             at[step] = cameras[-1]
             assert cameras[-1] is scene.train[i].camera
     assert list(at) == [4, 12]  # 8 densifies, 16 and 20 are past densify_until
     assert not expert.bin_errors[:, 1].any()  # the worst bin first, then the other
+
+
+def _with_moments_and_grads(expert) -> dict:
+    """One optimiser step on ``sum(p²)`` of every trainable tensor, then fresh gradients: every Gaussian
+    has non-zero moments and gradients. Returns the per-key optimisers."""
+    optimizers = Optimizers(expert.param_groups())
+    for _ in range(2):
+        optimizers.zero_grad()
+        sum((p.float() ** 2).sum() for p in expert.splats.values() if p.requires_grad).backward()
+        if _ == 0:
+            optimizers.step()
+    return optimizers.for_splats(expert.splats)
+
+
+def _moment(optimizers, expert, key) -> Tensor:
+    return optimizers[key].state[expert.splats[key]]["exp_avg"]
+
+
+def test_the_interval_conversion_rewrites_every_tensor_like_the_originals_optimiser():
+    """``cat_tensors_to_optimizer`` and ``prune_points`` after the backward pass (``train.py:224-228``):
+    the converted Gaussians' moments restart at zero, the others' are kept, and no tensor keeps the
+    gradient, so the step's update changes nothing."""
+    expert, scene = _expert(num_frames=3, grow_from=0, grow_every=10**6, interval=1)
+    expert.config.extract_every, expert.config.adjust_every = 4, 0
+    strategy = expert.config.strategy
+    strategy.densify_from, strategy.densify_every, strategy.densify_until = 0, 8, 14
+    s = expert.splats
+    with torch.no_grad():
+        s["drift"][:5] = 0.5
+        s["err_min_time"][:5] = 1.0
+    expert.bin_errors[0] = torch.tensor([1.0, 1.0])
+    optimizers = _with_moments_and_grads(expert)
+    before = _moment(optimizers, expert, "scales").clone()
+    expert.select_views(4, scene.train, 1, torch.Generator().manual_seed(0))
+    expert.after_backward(4, optimizers)
+    converted = s["dynamic"].nonzero()[:, 0]
+    assert converted.numel() >= 1 and before[converted].abs().sum() > 0
+    after = _moment(optimizers, expert, "scales")
+    assert after[converted].eq(0).all()
+    kept = ~s["dynamic"]
+    assert torch.equal(after[kept], before[kept])
+    assert all(p.grad is None for p in s.values())
+    means = s["means"].detach().clone()
+    for opt in set(optimizers.values()):
+        opt.step()
+    assert torch.equal(s["means"], means)
+
+
+def test_temporal_opacity_adjustment_rewrites_centres_and_widths_after_the_backward_pass():
+    """``adjust_temp_opa`` (``train.py:233-234``, ``replace_tensor_to_optimizer``): centres and widths restart
+    their moments and miss the step's update; the other tensors keep theirs. ``on_step``, which a resumed
+    run replays for its last step, no longer adjusts."""
+    expert, scene = _expert(num_frames=30, start_duration=10, interval=10)
+    expert.config.adjust_every, expert.config.adjust_until, expert.config.extract_every = 6, 100, 0
+    s = expert.splats
+    with torch.no_grad():
+        s["dynamic"][:3] = True
+        s["centers"][:3] = 0.0  # before the trained range: clamped in
+    expert.on_step(6)
+    assert s["centers"][:3].eq(0).all()
+    optimizers = _with_moments_and_grads(expert)
+    means_moment = _moment(optimizers, expert, "means").clone()
+    expert.after_backward(6, optimizers)
+    assert s["centers"][:3].gt(0).all()
+    for key in ("centers", "widths"):
+        assert _moment(optimizers, expert, key).eq(0).all() and s[key].grad is None
+    assert s["means"].grad is not None and torch.equal(_moment(optimizers, expert, "means"), means_moment)
+
+
+def test_a_growth_that_adds_keyframes_restarts_the_keyframe_moments():
+    """``expand_duration`` replaces ``motion_xyz``, ``motion_rotation`` and the temporal opacity tensors in
+    the optimiser (``c_gaussian_model.py:1286``); a growth that adds none leaves them alone."""
+    expert, scene = _expert(num_frames=30, start_duration=10, interval=10)
+    with torch.no_grad():
+        expert.splats["dynamic"][:2] = True
+    expert.keyframes.fill_(7)
+    optimizers = _with_moments_and_grads(expert)
+    quats = _moment(optimizers, expert, "motion_quats").clone()
+    assert not expert._grow(optimizers)  # to 20 (model duration 21): still 7 keyframes
+    assert torch.equal(_moment(optimizers, expert, "motion_quats"), quats)
+    assert expert._grow(optimizers)  # to 30: 8
+    for key in ("motion_means", "motion_quats", "centers", "widths"):
+        assert _moment(optimizers, expert, key).eq(0).all(), key
+    assert _moment(optimizers, expert, "means").abs().sum() > 0
+
+
+def test_the_strategy_runs_the_schedule_events_of_the_expert_it_is_bound_to():
+    """... and a conversion restarts the dynamic Gaussians' densification statistics
+    (``c_gaussian_model.py:1213-1220``)."""
+    expert, scene = _expert(num_frames=3)
+    strategy = expert.strategy()
+    assert strategy is expert.config.strategy
+    strategy.densify_until = 0  # the statistics stay as set here
+    calls = []
+
+    def recorder(name, converts):
+        return lambda step, optimizers: calls.append((name, step)) or converts
+
+    expert.after_backward, expert.after_update = recorder("backward", False), recorder("update", True)
+    n = expert.splats["means"].shape[0]
+    with torch.no_grad():
+        expert.splats["dynamic"][:3] = True
+    state = strategy.initialize_state(scene.extent)
+    state.update(grad2d=torch.ones(n), count=torch.ones(n), max_radii=torch.ones(n))
+    info = {"renders": [], "views": []}
+    strategy.step_post_backward(expert.splats, {}, state, 7, info)
+    assert state["grad2d"].eq(1).all()  # no conversion
+    strategy.step_post_optimizer(expert.splats, {}, state, 7, info)
+    assert calls == [("backward", 7), ("update", 7)]
+    for key in ("grad2d", "count", "max_radii"):
+        assert state[key].tolist() == [0.0] * 3 + [1.0] * (n - 3)
+    expert.config.strategy = ADCStrategy()
+    with pytest.raises(ValueError, match="Ex4DGSStrategy.*config.strategy is a ADCStrategy"):
+        expert.strategy()
 
 
 def test_invisible_and_thin_pruning_runs_once_per_pass_over_the_trained_views():
@@ -267,6 +397,7 @@ def test_invisible_and_thin_pruning_runs_once_per_pass_over_the_trained_views():
     g = torch.Generator().manual_seed(0)
     for step in range(1, 200):
         expert.select_views(step, scene.train, 1, g)
+        expert.after_update(step, {})
     per_frame = len(scene.train) // 30  # 4 cameras
     # frames 0-10 (44 views) for three passes, the third grown at 100 mid-pass; then 0-20 (84)
     assert starts == [1, 1 + 11 * per_frame, 1 + 22 * per_frame, 1 + 33 * per_frame]
