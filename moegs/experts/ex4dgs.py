@@ -874,7 +874,7 @@ class Ex4DGSExpert(Expert):
             s[key].data[idx] = extrapolate_keyframes(s[key].data[idx], have, average)
         centers, widths = s["centers"].data[idx], s["widths"].data[idx]
         near_end = (centers + c.shift / c.interval > (new + c.shift) / c.interval - 0.5).any(dim=1)
-        widths[:, 1] = torch.where(near_end, torch.ones_like(widths[:, 1]), widths[:, 1])
+        widths[:, 1].masked_fill_(near_end, 1.0)
         s["widths"].data[idx] = widths
         s["centers"].data[idx] = centers.clamp_max((c.shift + old - 1) / c.interval)
         self.keyframes.fill_(need)
