@@ -146,13 +146,15 @@ def initial_keyframes(x: Tensor, d: Tensor, interval: int, duration: float, coun
 
 
 def extrapolate_keyframes(keys: Tensor, valid: int, average: int = 4) -> Tensor:
-    """Keyframes ``valid..K-1`` replaced by the linear extrapolation of the mean step of the last
-    ``average`` valid ones (Ex4DGS ``expand_duration``). ``keys [M, K, C]`` -> ``[M, K, C]``."""
+    """Keyframes ``valid..K-1`` replaced by a linear extrapolation from the last valid one, as Ex4DGS's
+    ``lin_interp_last`` (``c_gaussian_model.py:1264-1269``): its step is the mean offset of the last
+    ``a = average`` valid keyframes from the one before them, ``mean_j (P_{v-j} - P_{v-a-1})``, which is
+    ``(a + 1) / 2`` times the step of a straight line. ``keys [M, K, C]`` -> ``[M, K, C]``."""
     total = keys.shape[1]
     if valid >= total:
         return keys
     average = max(1, min(average, valid - 1))
-    step = (keys[:, valid - average : valid] - keys[:, valid - average - 1 : valid - 1]).mean(
+    step = (keys[:, valid - average : valid] - keys[:, valid - average - 1 : valid - average]).mean(
         dim=1, keepdim=True
     )
     n = torch.arange(1, total - valid + 1, device=keys.device, dtype=keys.dtype).view(1, -1, 1)
@@ -381,8 +383,8 @@ class Ex4DGSStrategy(ADCStrategy):
     scale, ``c_gaussian_model.py:925``) rotated by that keyframe's rotation, get centres jittered by
     ``max(|c1 - c0| / 3, 2 / I) N(0, 1)`` and log-widths 2; clones of dynamic Gaussians get the same
     jitter and widths (``:1002-1007``). Split children start with fresh back-tracking statistics, clones
-    copy them, and every densification restarts the per-interval ones (``RESET_AT_DENSIFY``).
-    Deviation: the jittered centres are not clamped to the trained range.
+    copy them, and every densification restarts the per-interval ones (``RESET_AT_DENSIFY``). Jittered
+    centres are clamped to the bound expert's ``center_bounds`` (``:944, 1006``).
     """
 
     densify_from: int = 500
@@ -435,8 +437,9 @@ class Ex4DGSStrategy(ADCStrategy):
                 kids = torch.log(scales / self.split_scale_divisor).repeat(self.split_samples, 1)
             elif key == "centers":
                 moved = parents[None] + jitter[None, :, None] * torch.randn(
-                    self.split_samples, *parents.shape
+                    self.split_samples, *parents.shape, device=parents.device
                 )
+                moved = moved.clamp(*self._expert.center_bounds())
                 kids = torch.where(dynamic[None, :, None], moved, parents[None]).flatten(0, 1)
             elif key == "widths":
                 kids = torch.where(dynamic[:, None], torch.full_like(parents, 2.0), parents).repeat(
@@ -469,7 +472,8 @@ class Ex4DGSStrategy(ADCStrategy):
         if bool(dynamic.any()):
             rows = copies[dynamic]
             c = params["centers"].data[rows]
-            params["centers"].data[rows] = c + self._jitter(c)[:, None] * torch.randn_like(c)
+            jittered = c + self._jitter(c)[:, None] * torch.randn_like(c)
+            params["centers"].data[rows] = jittered.clamp(*self._expert.center_bounds())
             params["widths"].data[rows] = 2.0
 
     @torch.no_grad()
@@ -637,6 +641,12 @@ class Ex4DGSExpert(Expert):
         stores ``int(sample_len) + 1``, from the call before training, ``train.py:75``)."""
         return int(self.duration) + 1
 
+    def center_bounds(self) -> tuple[float, float]:
+        """Range of the temporal centres of split and cloned dynamic Gaussians, in keyframes:
+        ``((τs + 1) / I, (τs + D - 1) / I)`` with ``D`` the model duration (``c_gaussian_model.py:944``)."""
+        c = self.config
+        return (c.shift + 1) / c.interval, (c.shift + self.model_duration() - 1) / c.interval
+
     # -- rendering ---------------------------------------------------------------------------------------
     def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
         s, c = self.splats, self.config
@@ -720,26 +730,30 @@ class Ex4DGSExpert(Expert):
             acc = out.alpha.clamp_min(1e-4)
             weights = torch.stack([torch.ones_like(acc), l1_map, ssim_pix], dim=-1) / acc[..., None]
             b = min(round(frame) // self.config.interval, self.bin_errors.shape[0] - 1)  # frame k - 1e-6 is k
-            self.bin_errors[b] += torch.stack([l1_map.mean(), torch.ones(())])
+            self.bin_errors[b] += torch.stack([l1_map.mean(), l1_map.new_ones(())])
         probe_image.register_hook(lambda grad: weights)
         radii = out.info.get("radii")
-        probe.register_hook(lambda grad: self._accumulate(grad, frame, radii))
+        errors = step < self.config.strategy.densify_until
+        probe.register_hook(lambda grad: self._accumulate(grad, frame, radii, errors))
         return None
 
     @torch.no_grad()
-    def _accumulate(self, grad: Tensor, frame: float, radii: Tensor | None) -> None:
-        """Per-Gaussian back-tracked ``grad [N, 3]`` = (weight, L1, SSIM) sums of one view."""
+    def _accumulate(self, grad: Tensor, frame: float, radii: Tensor | None, errors: bool) -> None:
+        """Per-Gaussian back-tracked ``grad [N, 3]`` = (weight, L1, SSIM) sums of one view: the error
+        statistics when ``errors`` (``add_l1_ssim_stats``, only while densifying, ``train.py:203, 214-215``),
+        the smallest radius always (``mark_prune_stats``, ``:199-200``)."""
         s = self.splats
         w = grad[:, 0]
         seen = w > 0
-        l1 = grad[:, 1] / w.clamp_min(1e-4)
-        ssim = grad[:, 2] / w.clamp_min(1e-4)
-        better = seen & (w > 0.01) & (l1 < s["err_min"])
-        s["err_sum"].add_(torch.where(seen, l1, 0.0))
-        s["ssim_sum"].add_(torch.where(seen, ssim, 0.0))
-        s["err_count"].add_(seen.float())
-        s["err_min_time"].copy_(torch.where(better, frame, s["err_min_time"]))
-        s["err_min"].copy_(torch.where(better, l1, s["err_min"]))
+        if errors:
+            l1 = grad[:, 1] / w.clamp_min(1e-4)
+            ssim = grad[:, 2] / w.clamp_min(1e-4)
+            better = seen & (w > 0.01) & (l1 < s["err_min"])
+            s["err_sum"].add_(torch.where(seen, l1, 0.0))
+            s["ssim_sum"].add_(torch.where(seen, ssim, 0.0))
+            s["err_count"].add_(seen.float())
+            s["err_min_time"].copy_(torch.where(better, frame, s["err_min_time"]))
+            s["err_min"].copy_(torch.where(better, l1, s["err_min"]))
         if radii is not None:
             s["radius_min"].copy_(
                 torch.where(seen, torch.minimum(s["radius_min"], radii.float()), s["radius_min"])
@@ -970,7 +984,7 @@ class Ex4DGSExpert(Expert):
         if static.any():
             loss = loss + c.static_reg * torch.log(s["drift"][static].norm(dim=-1) + 0.001).mean()
         if dynamic.any():
-            keys = s["motion_means"][dynamic]
+            keys = s["motion_means"][dynamic][:, : int(self.keyframes)]  # train.py:159-161: K columns
             loss = loss + c.motion_reg * (keys[:, :1] - keys[:, 1:]).norm(dim=-1).mean()
         return loss
 

@@ -12,7 +12,6 @@ from torch import Tensor
 from moegs.experts.ex4dgs import (
     Ex4DGSConfig,
     Ex4DGSExpert,
-    Ex4DGSStrategy,
     catmull_rom,
     extrapolate_keyframes,
     grown_keyframe_count,
@@ -80,9 +79,12 @@ def test_initial_keyframes_resize_two_points_like_the_original():
     assert keys[0, :, 0].tolist() == pytest.approx([-1.0, -0.25, 1.25, 2.0])
 
 
-def test_extrapolate_keyframes_continues_the_mean_step():
+def test_extrapolate_keyframes_steps_like_lin_interp_last():
+    """``c_gaussian_model.py:1265``: the step is the mean of ``P_{v-j} - P_{v-a-1}`` over ``j = 1..a``, so a
+    straight line with unit steps goes on with steps of ``(a + 1) / 2``."""
     keys = torch.tensor([0.0, 1.0, 2.0, 3.0, 99.0, 99.0])[None, :, None]
-    assert extrapolate_keyframes(keys, valid=4, average=2)[0, :, 0].tolist() == [0, 1, 2, 3, 4, 5]
+    assert extrapolate_keyframes(keys, valid=4, average=2)[0, :, 0].tolist() == [0, 1, 2, 3, 4.5, 6]
+    assert extrapolate_keyframes(keys, valid=4, average=1)[0, :, 0].tolist() == [0, 1, 2, 3, 4, 5]
 
 
 def _expert(num_frames=3, **overrides) -> tuple[Ex4DGSExpert, object]:
@@ -217,7 +219,9 @@ def test_growth_extrapolates_keyframes_and_adjusts_the_temporal_opacity_like_exp
     expert.duration.fill_(20.0)  # model duration 21
     assert expert._grow({})  # length 30, model duration 31: 8 keyframes
     assert float(expert.duration) == 30 and int(expert.keyframes) == 8
-    assert s["motion_means"][0, :, 0].tolist() == steps.tolist()  # the line goes on
+    # the line goes on with lin_interp_last's step: mean of P_6 - P_2 .. P_3 - P_2 (a = min(7 - 2, 4)), 2.5
+    tail = 6 + 2.5 * torch.arange(1, len(steps) - 6)
+    assert s["motion_means"][0, :, 0].tolist() == steps[:7].tolist() + tail.tolist()
     # right widths: 2.0 + 1.2 = 3.2 is not > (31 + 12) / 10 - 0.5 = 3.8; 4.0 + 1.2 is
     assert s["widths"][:2].tolist() == [[5.0, 6.0], [5.0, 1.0]]
     # centres clamped to (12 + 21 - 1) / 10 = 3.2
@@ -512,7 +516,7 @@ def test_dynamic_split_moves_every_keyframe_and_resets_widths():
         s["dynamic"][0] = True
         s["widths"][0] = torch.tensor([5.0, 6.0])
         s["centers"][0] = torch.tensor([1.0, 3.0])
-    strategy = Ex4DGSStrategy(interval=10)
+    strategy = expert.strategy()
     before = s["motion_means"][0].clone()
     mask = torch.zeros(len(s["means"]), dtype=torch.bool)
     mask[0] = True
@@ -522,6 +526,8 @@ def test_dynamic_split_moves_every_keyframe_and_resets_widths():
     offsets = s["motion_means"][kids] - before  # identity keyframe rotations: one offset for all keyframes
     assert torch.allclose(offsets, offsets[:, :1].expand_as(offsets), atol=1e-6)
     assert torch.all(s["widths"][kids] == 2.0)
+    lo, hi = expert.center_bounds()  # jittered centres clamped to the trained range (cgm:944)
+    assert bool(s["centers"][kids].ge(lo).all() and s["centers"][kids].le(hi).all())
 
 
 def test_groups_antialiased_render_and_radam():
@@ -567,3 +573,35 @@ def test_an_interrupted_run_resumes_the_view_stack_and_schedule_exactly(tmp_path
     assert a.keys() == b.keys() and "view_stack" in a
     for key in a:
         assert torch.equal(a[key], b[key]), key
+
+
+def test_error_statistics_stop_with_the_densification_the_smallest_radius_goes_on():
+    """``add_l1_ssim_stats`` sits inside ``iteration < densify_until_iter`` (``train.py:203, 215``),
+    ``mark_prune_stats`` before it (``:200``): after the densification the best frames stay as they were,
+    which ``prune_invisible`` then reads."""
+    expert, scene = _expert(num_frames=3)
+    expert.train()
+    s, view = expert.splats, scene.train[0]
+    for step, counted in ((expert.config.strategy.densify_until, False), (1, True)):
+        rgb, out, _ = expert.render(view.camera, scene.background, return_stats=True)
+        expert.observe(step, view, rgb, view.image(), out)
+        rgb.sum().backward()
+        assert bool(s["err_count"].gt(0).any()) == counted
+        assert bool(s["radius_min"].lt(1000).any())
+
+
+def test_the_motion_regulariser_reads_the_keyframes_in_use():
+    """``train.py:159-161``: ``mean ||P_0 - P_k||`` over the ``keyframe_num`` columns the original allocates;
+    ours allocates more, extrapolated past the last one in use."""
+    expert, scene = _expert(num_frames=3)
+    c, s = expert.config, expert.splats
+    c.static_reg = 0.0
+    with torch.no_grad():
+        s["dynamic"][:2] = True
+        s["motion_means"][:2] = 1.0
+        s["motion_means"][:2, 5:] = 7.0  # past the 5 keyframes in use
+    expert.keyframes.fill_(5)
+    assert float(expert.regularization(c.reg_from + 1).detach()) == 0.0
+    expert.keyframes.fill_(6)
+    expected = c.motion_reg * 6.0 * math.sqrt(3) / 5  # one of the 5 differences is (6, 6, 6)
+    assert float(expert.regularization(c.reg_from + 1).detach()) == pytest.approx(expected)
