@@ -1003,7 +1003,14 @@ class Ex4DGSExpert(Expert):
             ("centers", c.centers_lr),
             ("widths", c.widths_lr),
         ]
-        return splat_param_groups(s, c, sc, constant, eps=c.optimizer_eps, optimizer=c.optimizer)
+        # the dynamic set counts its own steps, from the first conversion (moegs.train.set_optim)
+        return splat_param_groups(
+            s, c, sc, constant, eps=c.optimizer_eps, optimizer=c.optimizer, second_set=self._dynamic_rows
+        )
+
+    def _dynamic_rows(self) -> Tensor:
+        """The ``dynamic`` flags ``[N]`` of the current splats (densification replaces the tensor)."""
+        return self.splats["dynamic"]
 
     def strategy(self) -> Strategy:
         """The config's ``Ex4DGSStrategy``, bound to this expert: its step hooks run the conversions,

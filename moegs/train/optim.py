@@ -12,6 +12,7 @@ from torch import nn
 
 from moegs.train.params import ParamGroup
 from moegs.train.schedules import group_lr
+from moegs.train.set_optim import SetOptimizer
 
 ADAM_BETAS = (0.9, 0.999)  # torch defaults, used unchanged by 3DGS and every expert built on it
 _OPTIMIZERS = {"adam": torch.optim.Adam, "radam": torch.optim.RAdam}
@@ -34,9 +35,11 @@ class Optimizers:
                 )
             if not g.params:
                 raise ValueError(f"param group {g.name!r} has no parameters")
-            self.optimizers[g.name] = _OPTIMIZERS[g.optimizer](
-                [{"params": list(g.params), "lr": g.lr}], lr=g.lr, betas=ADAM_BETAS, eps=g.eps
-            )
+            params, options = [{"params": list(g.params), "lr": g.lr}], {"betas": ADAM_BETAS, "eps": g.eps}
+            if g.second_set is None:
+                self.optimizers[g.name] = _OPTIMIZERS[g.optimizer](params, lr=g.lr, **options)
+            else:
+                self.optimizers[g.name] = SetOptimizer(params, g.optimizer, g.second_set, lr=g.lr, **options)
 
     def for_splats(self, splats: nn.ParameterDict) -> dict[str, torch.optim.Optimizer]:
         """Map each trainable per-Gaussian key to the optimiser holding it (for strategy ops).

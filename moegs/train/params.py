@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from torch import Tensor
@@ -29,3 +30,6 @@ class ParamGroup:
     optimizer: str = "adam"
     start_step: int = 0
     """Iteration at which the schedule starts (its step 0), e.g. the first step of a later stage."""
+    second_set: Callable[[], Tensor] | None = None
+    """Which rows ``[N]`` of each tensor belong to a second set of Gaussians that counts its own optimiser
+    steps (``moegs.train.set_optim``; Ex4DGS's dynamic set); None: one set."""

@@ -605,3 +605,20 @@ def test_the_motion_regulariser_reads_the_keyframes_in_use():
     expert.keyframes.fill_(6)
     expected = c.motion_reg * 6.0 * math.sqrt(3) / 5  # one of the 5 differences is (6, 6, 6)
     assert float(expert.regularization(c.reg_from + 1).detach()) == pytest.approx(expected)
+
+
+def test_the_dynamic_set_counts_its_own_optimiser_steps_from_the_first_conversion():
+    """The dynamic tensors enter the original's optimiser at the first conversion
+    (``c_gaussian_model.py:78-86, 439-449``): their step count, and so the bias corrections, start there."""
+    expert, scene = _expert(num_frames=3)
+    s = expert.splats
+    optimizers = Optimizers(expert.param_groups())
+    for step in range(3):
+        if step == 2:
+            with torch.no_grad():
+                s["dynamic"][:2] = True
+        optimizers.zero_grad()
+        sum((p.float() ** 2).sum() for p in s.values() if p.requires_grad).backward()
+        optimizers.step()
+    state = optimizers.for_splats(s)["scales"].state[s["scales"]]
+    assert (float(state["step"]), float(state["step_second"])) == (3, 1)

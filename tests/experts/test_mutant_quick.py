@@ -26,7 +26,7 @@ PSNR_FLOORS = {  # expert: floor (dB); measured min-max over 3 seeds x {1, 2} th
     "mcmc": 23.3,  # 23.89-25.35 (seed 0 is the low one)
     "ed3dgs": 22.6,  # 23.13-25.39 (seed 1 is the low one)
     "stg": 26.4,  # 26.95-27.56
-    "ex4dgs": 24.7,  # 25.22-25.34, re-measured 2026-11-29 with the schedule events around the update
+    "ex4dgs": 24.7,  # 25.13-25.44, re-measured 2026-11-29 with the dynamic set counting its own Adam steps
 }
 
 

@@ -1,0 +1,98 @@
+"""Adam or RAdam over per-Gaussian tensors whose rows belong to two sets that count their steps apart.
+
+Ex4DGS keeps its static and dynamic Gaussians in separate tensors, each with its own optimiser state. The
+dynamic tensors only enter the optimiser at the first static-to-dynamic conversion
+(``c_gaussian_model.py:78-86, 439-449, 765-787``), so their step count, which sets the bias corrections
+(and RAdam's rectification), starts there. This suite keeps both sets in one tensor per attribute with a
+``dynamic`` flag; ``SetOptimizer`` updates each set's rows with torch's own functional Adam or RAdam and
+that set's step count, so every row moves bit for bit as it would in its own set's tensor. A set counts
+every update from the first one at which it holds a row (an emptied tensor keeps being stepped in the
+original).
+
+Moments are per row, so densification (``moegs.train.strategy.ops``) keeps them in step as for Adam; the
+two counts are scalars and are kept.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+from torch import Tensor
+from torch.optim.adam import adam as adam_update
+from torch.optim.radam import radam as radam_update
+
+KINDS = ("adam", "radam")
+
+
+class SetOptimizer(torch.optim.Optimizer):
+    """torch's Adam or RAdam (``kind``; no weight decay) where ``second_set() -> [N]`` bool marks the rows
+    of each parameter ``[N, ...]`` that count steps in ``state["step_second"]``; the others count in
+    ``state["step"]``."""
+
+    def __init__(
+        self,
+        params,
+        kind: str,
+        second_set: Callable[[], Tensor],
+        lr: float = 1e-3,
+        betas: tuple[float, float] = (0.9, 0.999),
+        eps: float = 1e-8,
+    ) -> None:
+        if kind not in KINDS:
+            raise ValueError(f"SetOptimizer: kind must be one of {KINDS}, got {kind!r}")
+        super().__init__(params, {"lr": lr, "betas": betas, "eps": eps})
+        self.kind, self.second_set = kind, second_set
+
+    @torch.no_grad()
+    def step(self, closure=None) -> None:
+        for group in self.param_groups:
+            for p in group["params"]:
+                if p.grad is not None:
+                    self._update(p, group)
+
+    def _update(self, p: Tensor, group: dict) -> None:
+        state = self.state[p]
+        if not state:
+            state.update(
+                step=torch.tensor(0.0),
+                step_second=torch.tensor(0.0),
+                exp_avg=torch.zeros_like(p),
+                exp_avg_sq=torch.zeros_like(p),
+            )
+        second = self.second_set().to(p.device)
+        if second.shape != p.shape[:1]:
+            raise ValueError(
+                f"SetOptimizer: second_set() gives {tuple(second.shape)} rows for {tuple(p.shape)}"
+            )
+        moments = (state["exp_avg"], state["exp_avg_sq"])
+        for key, rows in (("step", ~second), ("step_second", second)):
+            if not (bool(rows.any()) or float(state[key]) > 0):
+                continue  # the set has never held a row: its tensors are not in the original's optimiser yet
+            if bool(rows.all()):
+                self._functional(group, p, p.grad, *moments, state[key])
+                continue
+            idx = rows.nonzero(as_tuple=True)[0]
+            part, part_moments = p[idx], [m[idx] for m in moments]
+            self._functional(group, part, p.grad[idx], *part_moments, state[key])
+            p[idx] = part
+            for m, part_m in zip(moments, part_moments, strict=True):
+                m[idx] = part_m
+
+    def _functional(
+        self, group: dict, param: Tensor, grad: Tensor, exp_avg: Tensor, exp_avg_sq: Tensor, step: Tensor
+    ) -> None:
+        """One update of one set's rows by torch's single-tensor implementation (``step`` counts up)."""
+        beta1, beta2 = group["betas"]
+        options = {
+            "beta1": beta1,
+            "beta2": beta2,
+            "lr": group["lr"],
+            "weight_decay": 0.0,
+            "eps": group["eps"],
+        }
+        tensors = ([param], [grad], [exp_avg], [exp_avg_sq])
+        if self.kind == "adam":
+            adam_update(*tensors, [], [step], foreach=False, amsgrad=False, maximize=False, **options)
+        else:
+            radam_update(*tensors, [step], foreach=False, **options)
