@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.paper import load_original_table, load_paper_table
-from bench.spec import EXPERTS
+from bench.spec import EXPERTS, QUALITY
 
 ROW_ALIASES = {"static": "3D-GS"}
 """Registry names whose published row is spelled otherwise than the MoE-GS paper's (DeformableGS's Table 1
@@ -102,10 +102,10 @@ def readme_section(table: dict, published: list[dict], machine: str | None = Non
         cells = entry["rows"].get(row)
         if not cells:
             return "–"
-        metrics = [m for m in ("PSNR", "SSIM", "LPIPS") if m in cells]
+        metrics = [m for m in QUALITY if m in cells]
         text = " / ".join(cells[m]["printed"] for m in metrics)
         refs = sorted({cite(cells[m].get("source") or entry["title"]) for m in metrics})
-        label = "" if metrics == ["PSNR", "SSIM", "LPIPS"] else f" ({'/'.join(metrics)})"
+        label = "" if tuple(metrics) == QUALITY else f" ({'/'.join(metrics)})"
         return f"{text}{label} " + "".join(f"[{r}]" for r in refs)
 
     rows = table["rows"]

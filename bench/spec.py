@@ -22,6 +22,9 @@ from typing import Any, TypeVar
 T = TypeVar("T")
 
 AXES = ("scenes", "metrics", "seeds", "budgets", "none")
+#: the paper's image-quality columns, and its efficiency columns
+QUALITY = ("PSNR", "SSIM", "LPIPS")
+EFFICIENCY = ("PSNR", "FPS", "Memory")
 
 #: The paper's expert names -> ``moegs.experts`` registry names.
 EXPERTS: dict[str, str] = {

@@ -1,6 +1,6 @@
 """Table V (tab:n23-tfm): efficiency of MoE-GS N=2 with gate-aware pruning (PSNR, FPS, memory)."""
 
-from bench.spec import Claim, Spec, expert, moe
+from bench.spec import EFFICIENCY, Claim, Spec, expert, moe
 
 _N2, _P55, _P75 = "MoE-GS (N=2)", "MoE-GS (55% pruning)", "MoE-GS (75% pruning)"
 
@@ -9,7 +9,7 @@ SPEC = Spec(
     title="Efficiency of MoE-GS N=2 and gate-aware pruning (N3V)",
     dataset="n3v",
     axis="metrics",
-    metrics=("PSNR", "FPS", "Memory"),
+    metrics=EFFICIENCY,
     rows=(
         expert("STG†", "STG"),
         expert("Ex4DGS"),

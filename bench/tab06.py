@@ -1,6 +1,6 @@
 """Table VI (tab:MoE_arch): router variants: pixel, volume and volume-aware pixel router."""
 
-from bench.spec import Claim, Spec, moe
+from bench.spec import QUALITY, Claim, Spec, moe
 
 _VAPR, _VOL, _PIX = "Volume-aware Pixel Router", "Volume Router", "Pixel Router"
 _WORDING = "Volume-aware Pixel Router (paper wording)"
@@ -10,7 +10,7 @@ SPEC = Spec(
     title="MoE-GS router variants (N=3, N3V)",
     dataset="n3v",
     axis="metrics",
-    metrics=("PSNR", "SSIM", "LPIPS"),
+    metrics=QUALITY,
     rows=(
         moe(_PIX, 3, router="pixel"),
         moe(_VOL, 3, router="volume"),

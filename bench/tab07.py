@@ -1,6 +1,6 @@
 """Table VII (tab:abl_render_prune): single-pass multi-expert rendering and gate-aware pruning."""
 
-from bench.spec import Claim, Spec, moe
+from bench.spec import EFFICIENCY, Claim, Spec, moe
 
 _NONE, _NO_SP, _NO_PR, _FULL = ("w/o Single-Pass & Pruning", "w/o Single-Pass", "w/o Pruning", "MoE-GS (N=3)")
 
@@ -9,7 +9,7 @@ SPEC = Spec(
     title="Ablation of single-pass rendering and pruning (N=3, N3V)",
     dataset="n3v",
     axis="metrics",
-    metrics=("PSNR", "FPS", "Memory"),
+    metrics=EFFICIENCY,
     rows=(
         moe(_NONE, 3, single_pass=False),
         moe(_NO_SP, 3, single_pass=False, prune="gate"),

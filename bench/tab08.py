@@ -1,6 +1,6 @@
 """Table VIII (tab:KD_MoE): experts retrained with the GT loss vs distilled from MoE-GS (N=3)."""
 
-from bench.spec import Claim, Spec, distill, expert
+from bench.spec import QUALITY, Claim, Spec, distill, expert
 
 _PAIRS = (("E-D3DGS", "E-D3DGS (Distilled)"), ("STG", "STG (Distilled)"), ("Ex4DGS", "Ex4DGS (Distilled)"))
 
@@ -9,7 +9,7 @@ SPEC = Spec(
     title="Distilled vs retrained experts (Technicolor)",
     dataset="technicolor",
     axis="metrics",
-    metrics=("PSNR", "SSIM", "LPIPS"),
+    metrics=QUALITY,
     rows=tuple(r for e, d in _PAIRS for r in (expert(e), distill(d, e, weighted=True))),
     claims=tuple(
         Claim(

@@ -1,6 +1,6 @@
 """Table XII (tab:appen_n3v_qunati): per-scene PSNR/SSIM/LPIPS on N3V, experts and MoE-GS N=4."""
 
-from bench.spec import Claim, Spec, expert, moe
+from bench.spec import QUALITY, Claim, Spec, expert, moe
 
 _EXPERTS = ["4DGaussians", "E-D3DGS", "STG†", "Ex4DGS"]
 
@@ -8,7 +8,7 @@ SPEC = Spec(
     id="tab12",
     title="Per-scene PSNR/SSIM/LPIPS on N3V",
     dataset="n3v",
-    metrics=("PSNR", "SSIM", "LPIPS"),
+    metrics=QUALITY,
     rows=(
         expert("4DGaussians"),
         expert("E-D3DGS"),
@@ -24,7 +24,7 @@ SPEC = Spec(
             {"a": "MoE-GS (N=4)", "b": _EXPERTS, "metric": m, "columns": "@scenes", "strict": False},
             "Appendix, Table XII",
         )
-        for m in ("PSNR", "SSIM", "LPIPS")
+        for m in QUALITY
     ),
 )
 

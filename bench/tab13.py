@@ -1,6 +1,6 @@
 """Table XIII (tab:appen_tech_quanti): per-scene PSNR/SSIM/LPIPS on Technicolor, MoE-GS N=3."""
 
-from bench.spec import Claim, Spec, expert, external, moe
+from bench.spec import QUALITY, Claim, Spec, expert, external, moe
 
 _ROWS = ["HyperReel", "4DGaussians", "STG", "Ex4DGS"]
 
@@ -8,7 +8,7 @@ SPEC = Spec(
     id="tab13",
     title="Per-scene PSNR/SSIM/LPIPS on Technicolor",
     dataset="technicolor",
-    metrics=("PSNR", "SSIM", "LPIPS"),
+    metrics=QUALITY,
     rows=(
         external("DyNeRF"),
         external("HyperReel"),
@@ -25,7 +25,7 @@ SPEC = Spec(
             {"row": "MoE-GS (N=3)", "among": _ROWS, "metric": m},
             "Appendix, Table XIII",
         )
-        for m in ("PSNR", "SSIM", "LPIPS")
+        for m in QUALITY
     ),
     notes="The N=3 set is {Ex4DGS, STG, E-D3DGS}; the table has no E-D3DGS row.",
 )

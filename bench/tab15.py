@@ -1,6 +1,6 @@
 """Table XV (tab:distillation_ablation): retrained vs distilled w/o weight vs distilled (routing weight)."""
 
-from bench.spec import Claim, Row, Spec, distill, expert
+from bench.spec import QUALITY, Claim, Row, Spec, distill, expert
 
 _EXPERTS = ("E-D3DGS", "STG", "Ex4DGS")
 _RT, _WO, _OURS = "Retrained (GT Loss)", "Distilled (w/o Weight)", "Distilled (Ours)"
@@ -18,7 +18,7 @@ SPEC = Spec(
     id="tab15",
     title="Distillation ablation per scene (Technicolor)",
     dataset="technicolor",
-    metrics=("PSNR", "SSIM", "LPIPS"),
+    metrics=QUALITY,
     rows=tuple(r for e in _EXPERTS for r in _rows(e)),
     claims=tuple(
         Claim(

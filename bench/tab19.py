@@ -1,6 +1,6 @@
 """Table XIX (tab:distill_weight): routing-weighted vs unweighted distillation of E-D3DGS."""
 
-from bench.spec import Claim, Spec, distill, expert
+from bench.spec import QUALITY, Claim, Spec, distill, expert
 
 _ROWS = ["Routing Weight (Ours)", "w/o Weight", "E-D3DGS (Baseline)"]
 
@@ -9,7 +9,7 @@ SPEC = Spec(
     title="Routing-weighted distillation of E-D3DGS (Technicolor)",
     dataset="technicolor",
     axis="metrics",
-    metrics=("PSNR", "SSIM", "LPIPS"),
+    metrics=QUALITY,
     column_metric={"PSNR (dB)": "PSNR"},
     rows=(
         expert("E-D3DGS (Baseline)", "E-D3DGS"),
