@@ -45,6 +45,7 @@ LAYERS = (
         "train.params",
         "train.schedules",
         "train.optim",
+        "train.set_optim",
         "train.losses",
         "train.strategy",
         "train.sampler",
