@@ -126,13 +126,14 @@ def _executor(args: argparse.Namespace):
 
 def output_dirs(out: Path, preset, selected: list[str], complete: list[str]) -> tuple[Path, Path]:
     """``(tables, reports)`` folders of a run: ``out/tables`` and ``out/reports`` for a complete run of
-    the default layout; a ``real_only`` preset (``standard``) keeps its own ``<preset>/`` subfolders; a
-    subset of ``complete`` goes under ``reports/subsets/[<preset>-]<ids>/``, leaving the full outputs."""
+    the default layout; a preset with ``separate_outputs`` (``standard``, ``quick32``) keeps its own
+    ``<preset>/`` subfolders; a subset of ``complete`` goes under ``reports/subsets/[<preset>-]<ids>/``,
+    leaving the full outputs."""
     if set(selected) != set(complete):
-        own = f"{preset.name}-" if preset.real_only else ""
+        own = f"{preset.name}-" if preset.separate_outputs else ""
         base = out / "reports" / "subsets" / (own + "-".join(selected))
         return base / "tables", base / "reports"
-    if preset.real_only:
+    if preset.separate_outputs:
         return out / "tables" / preset.name, out / "reports" / preset.name
     return out / "tables", out / "reports"
 

@@ -51,6 +51,9 @@ class BenchPreset:
             ``expert_preset``; ``"paper"`` is the authors' full schedule (5000 iterations, RAdam).
         real_only: only tables whose scenes are all real run at this preset; the stand-in tables stay
             at ``quick`` (a full run of this preset is the set of real-scene tables).
+        own_outputs: a full run writes ``tables/<name>/`` and ``reports/<name>/`` (as a ``real_only``
+            preset does), leaving the default layout's outputs alone. It places outputs, never changes a
+            number, so it is not part of any cell key.
     """
 
     name: str
@@ -82,6 +85,12 @@ class BenchPreset:
     native_psnr: bool = False
     """Also score real scenes below native resolution upsampled to it (``psnr_native``)."""
     scene_seeds: int = 1
+    own_outputs: bool = False
+
+    @property
+    def separate_outputs(self) -> bool:
+        """Whether this preset's outputs go to ``<name>/`` subfolders (``real_only`` or ``own_outputs``)."""
+        return self.real_only or self.own_outputs
 
     def to_dict(self) -> dict[str, Any]:
         """Every field except the ``PLANNING_FIELDS`` and the ``LATER_FIELDS`` left at their default: a
@@ -111,7 +120,7 @@ class BenchPreset:
 
 LATER_FIELDS = ("schedule_iterations", "router_scale", "real_only", "native_psnr")
 """Fields added after results were cached; omitted from ``to_dict`` at their default."""
-PLANNING_FIELDS = ("scene_seeds",)
+PLANNING_FIELDS = ("scene_seeds", "own_outputs")
 """Fields that choose which cells run, never what one computes; never in ``to_dict``."""
 
 CPU_REAL_SCENES: dict[str, dict[str, Any]] = {
@@ -179,6 +188,19 @@ STANDARD = replace(
 )
 """``quick`` with the real scenes trained longer (see the fields it replaces)."""
 
+QUICK32 = replace(
+    QUICK,
+    name="quick32",
+    description="quick with 32-frame stand-ins "
+    "(a diagnostic: what the stand-ins' length does to their tables)",
+    synthetic_overrides={"num_frames": 32},
+    own_outputs=True,
+)
+"""``quick`` with stand-ins twice as long (16 -> 32 frames of the same motion, at the same cameras): Ex4DGS
+grows its training window 10 frames at a time (``Ex4DGSConfig.interval``), so on 16 frames its schedule
+runs two conversions where N3V's 300 frames run many. A diagnostic of the stand-in tables, not the
+benchmark (README, "The stand-ins' length")."""
+
 PRESETS: dict[str, BenchPreset] = by_name(
     (
         BenchPreset(
@@ -209,6 +231,7 @@ PRESETS: dict[str, BenchPreset] = by_name(
             mdc_views=2,
         ),
         QUICK,
+        QUICK32,
         STANDARD,
         BenchPreset(
             "paper",

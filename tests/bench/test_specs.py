@@ -25,7 +25,7 @@ def test_registries_keep_their_order_and_refuse_a_repeated_name():
     from bench.datasets import DATASETS
     from bench.presets import PRESETS
 
-    assert list(PRESETS) == ["tiny", "quick", "standard", "paper"]
+    assert list(PRESETS) == ["tiny", "quick", "quick32", "standard", "paper"]
     assert list(METRICS)[:3] == ["PSNR", "SSIM", "LPIPS"]
     assert all(name == item.name for table in (METRICS, DATASETS, PRESETS) for name, item in table.items())
     twice = (Metric("PSNR", "psnr", True, 2), Metric("PSNR", "psnr_x", True, 2))
