@@ -1,5 +1,6 @@
 """Bench scale presets: ``tiny`` (tests), ``quick`` (CPU, every table in about an hour), ``standard`` (CPU,
-the real scenes trained far longer, about two hours), ``paper``.
+the real scenes trained far longer, about two hours), ``paper``; ``quick32`` (a diagnostic: quick
+with stand-ins twice as long).
 
 A bench preset fixes everything that changes the numbers: which expert config preset is used, the
 data scale (resolution, frames, synthetic stand-in size), the training schedules (steps overrides)
@@ -24,7 +25,7 @@ class BenchPreset:
     """One scale of the whole benchmark.
 
     Attributes:
-        name: ``tiny`` | ``quick`` | ``standard`` | ``paper``.
+        name: ``tiny`` | ``quick`` | ``quick32`` | ``standard`` | ``paper``.
         description: one line for captions and the report.
         expert_preset: the experts' own config preset (``Expert.config_class.from_preset``).
         synthetic_preset: ``moegs.data.synthetic`` preset of the stand-in scenes.
@@ -121,7 +122,8 @@ class BenchPreset:
 LATER_FIELDS = ("schedule_iterations", "router_scale", "real_only", "native_psnr")
 """Fields added after results were cached; omitted from ``to_dict`` at their default."""
 PLANNING_FIELDS = ("scene_seeds", "own_outputs")
-"""Fields that choose which cells run, never what one computes; never in ``to_dict``."""
+"""Fields that choose which cells run or where outputs go, never what one computes; never in
+``to_dict``."""
 
 CPU_REAL_SCENES: dict[str, dict[str, Any]] = {
     "dnerf": {"resolution_scale": 1 / 8, "num_points": 5000},
