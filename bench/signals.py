@@ -24,6 +24,7 @@ from bench.keys import digest
 from bench.plan import Plan, make_plan
 from bench.presets import get_preset
 from bench.results import ResultError, read_result
+from bench.scenes import load_kwargs
 from bench.spec import METRICS
 from bench.store import Workspace
 from moegs.io import read_json
@@ -205,8 +206,10 @@ def run_noise(plan: Plan, workspace: Workspace, committed: Path | None = None) -
       summary, so a warm re-run judges as the run it repeats; other cells (other code) never pool.
     * Completed: a scene with no spread of its own borrows the one the ``NOISE_PROXY`` preset measured
       on it with the same specs in the same workspace, or else the one in ``committed`` (for a run on a
-      machine without the quick cells). A borrowed entry keeps ``"preset"`` (and, from a summary,
-      ``"committed"``: which file and commit), so the report says so. A longer run's noise is not
+      machine without the quick cells), where that preset loads the scene as this one does (a stand-in
+      of another size, ``quick32``'s or ``tiny``'s, is another scene under the same name). A borrowed
+      entry keeps ``"preset"`` (and, from a summary, ``"committed"``: which file and commit), so the
+      report says so. A longer run's noise is not
       measured by a shorter one's, but a claim decided by less than the quick run's spread is not
       decided."""
     noise = seed_noise(plan, workspace)
@@ -217,8 +220,14 @@ def run_noise(plan: Plan, workspace: Workspace, committed: Path | None = None) -
     noise.update(_stand_in_spread(noise["scenes"]))
     if plan.preset.name == NOISE_PROXY:
         return noise
-    proxy = seed_noise(make_plan([sp.spec for sp in plan.specs], get_preset(NOISE_PROXY)), workspace)
-    wanted = {s.name for sp in plan.specs for s in sp.scenes}
+    proxy_preset = get_preset(NOISE_PROXY)
+    proxy = seed_noise(make_plan([sp.spec for sp in plan.specs], proxy_preset), workspace)
+    wanted = {
+        s.name
+        for sp in plan.specs
+        for s in sp.scenes
+        if load_kwargs(s, plan.preset) == load_kwargs(s, proxy_preset)
+    }
     for name, entry in [*proxy["scenes"].items(), *recorded.items()]:
         if name in wanted:
             noise["scenes"].setdefault(name, entry)

@@ -258,6 +258,10 @@ def test_tables_of_scenes_without_a_stability_run_average_several_seeds_and_judg
     assert borrowed["scenes"]["panoptic:basketball"]["preset"] == "quick"
     assert noise_for(borrowed, ["panoptic:basketball"])["PSNR"] == pytest.approx(2.5)
     assert any("| tab16 (quick run) |" in line for line in noise_markdown(borrowed))
+    # quick32 loads basketball as quick does and borrows its spread; its 32-frame N3V stand-in is another
+    # scene under the same name and borrows nothing
+    longer = run_noise(bench.plan.make_plan(["tab16", "tab09"], get_preset("quick32")), ws)["scenes"]
+    assert longer["panoptic:basketball"]["preset"] == "quick" and "synthetic:n3v_like" not in longer
     # on a machine without the quick cells (a fresh standard run), the committed quick summary's spread
     summary = tmp_path / "reports" / "summary.json"
     summary.parent.mkdir()
