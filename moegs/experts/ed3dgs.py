@@ -214,6 +214,16 @@ class ED3DGSFields(nn.Module):
 
 # -- config ----------------------------------------------------------------------------------------------
 @dataclass
+class ED3DGSStrategy(ADCStrategy):
+    """3DGS densification as E-D3DGS's ``train.py`` runs it: the screen gradients of a step's views are
+    summed before the norm, and a Gaussian seen by any of them counts once (``:158-159, 204-206, 249-250``);
+    no extra opacity reset at ``densify_from`` on a white background."""
+
+    batch_stats: str = "summed"
+    reset_at_densify_from_if_white: bool = False
+
+
+@dataclass
 class ED3DGSConfig(ExpertConfig):
     """E-D3DGS hyperparameters. Defaults: the N3V protocol used by MoE-GS (``arguments/dynerf/default.py``
     over ``arguments/__init__.py``)."""
@@ -291,14 +301,13 @@ class ED3DGSConfig(ExpertConfig):
     multiview_ssim_iters: int = 5
     """After ``random_until``, the first this many iterations of every 50 reuse one frame and add D-SSIM."""
     strategy: Strategy = field(
-        default_factory=lambda: ADCStrategy(
+        default_factory=lambda: ED3DGSStrategy(
             densify_from=5000,
             densify_until=80_000,
             densify_every=100,
             grad_threshold=3e-4,
             prune_opacity=0.005,
             reset_every=NEVER,
-            reset_at_densify_from_if_white=False,
         )
     )
     """Densify/prune every 100 from 5000 (N3V), no opacity reset, no size pruning."""
@@ -394,14 +403,13 @@ class ED3DGSConfig(ExpertConfig):
             deformation_lr_final=1.6e-4,  # :51
             time_offsets=False,  # :72 offsets_lr 0
             random_until=60_000,  # :73
-            strategy=ADCStrategy(
+            strategy=ED3DGSStrategy(
                 densify_from=500,  # :35-36
                 densify_until=80_000,  # :32
                 densify_every=100,  # :37
                 grad_threshold=3e-4,  # :39-40
                 prune_opacity=0.005,  # :42-43
                 reset_every=NEVER,  # :33
-                reset_at_densify_from_if_white=False,
             ),
             train=TrainConfig(iterations=80_000, lambda_dssim=0.0),  # :29
         )
@@ -425,14 +433,13 @@ class ED3DGSConfig(ExpertConfig):
             lambda_ssim=0.0,  # :57
             multiview_ssim_iters=0,  # :58
             consecutive_pairs=True,  # ModelParams loader "nerfies" (:2)
-            strategy=ADCStrategy(
+            strategy=ED3DGSStrategy(
                 densify_from=500,  # :25-26
                 densify_until=15_000,  # arguments/__init__.py:128
                 densify_every=100,  # :27
                 grad_threshold=2e-4,  # :29-30
                 prune_opacity=0.005,  # :31-32
                 reset_every=NEVER,  # :23
-                reset_at_densify_from_if_white=False,
             ),
             train=TrainConfig(iterations=30_000, batch_size=2, lambda_dssim=0.0),  # :22; __init__.py:102
         )

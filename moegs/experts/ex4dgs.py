@@ -29,7 +29,7 @@ section 2.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import torch
@@ -215,8 +215,13 @@ class Ex4DGSConfig(ExpertConfig):
     motion_means_lr: float = 1.6e-4
     """Keyframe positions, times the extent, **constant** (the original schedule never runs)."""
     sh0_lr: float = 2.5e-3
-    """SH DC of both sets (deviation: Technicolor Birthday/Painter/Train use 2.5e-4 for the dynamic set)."""
+    """SH DC of the static set (``feature_lr``, ``c_gaussian_model.py:432``)."""
     shN_lr: float = 2.5e-3 / 20
+    motion_sh0_lr: float = 2.5e-3
+    """SH DC of the dynamic set (``feature_motion_lr``, ``c_gaussian_model.py:440``; Technicolor Birthday,
+    Painter and Train: 2.5e-4)."""
+    motion_shN_lr: float = 2.5e-3 / 20
+    """Higher SH bands of the dynamic set (``feature_motion_lr / 20``, ``c_gaussian_model.py:441``)."""
     opacities_lr: float = 0.05
     motion_opacities_lr: float = 0.01
     scales_lr: float = 5e-3
@@ -273,6 +278,8 @@ class Ex4DGSConfig(ExpertConfig):
         # progressive_growing_steps, extracton_interval, extract_percentile, thresholds, static_reg;
         # adjust_temp_opa runs every 4 densification intervals until densify_until - 3000 (train.py:233-234)
         "technicolor:birthday": {
+            "motion_sh0_lr": 2.5e-4,
+            "motion_shN_lr": 2.5e-4 / 20,
             "strategy.densify_every": 250,
             "motion_opacities_lr": 1e-4,
             "widths_lr": 1e-3,
@@ -290,6 +297,8 @@ class Ex4DGSConfig(ExpertConfig):
             "far": 100.0,
         },
         "technicolor:painter": {
+            "motion_sh0_lr": 2.5e-4,
+            "motion_shN_lr": 2.5e-4 / 20,
             "train.iterations": 30_000,
             "strategy.densify_until": 25_000,
             "motion_opacities_lr": 1e-4,
@@ -308,6 +317,8 @@ class Ex4DGSConfig(ExpertConfig):
             "far": 100.0,
         },
         "technicolor:train": {
+            "motion_sh0_lr": 2.5e-4,
+            "motion_shN_lr": 2.5e-4 / 20,
             "strategy.densify_every": 200,
             "motion_opacities_lr": 1e-4,
             "widths_lr": 1e-3,
@@ -330,10 +341,9 @@ class Ex4DGSConfig(ExpertConfig):
     @classmethod
     def paper_technicolor(cls) -> Ex4DGSConfig:
         """The values all ``configs/techni/*.json`` share: ``time_pad`` 3, temporal-centre lr 1e-3, 3777
-        iterations between extractions, near plane 0.01. Deviations: the original normalises
+        iterations between extractions, near plane 0.01. Deviation: the original normalises
         Technicolor scenes by the camera radius (``scene/dataset_readers.py:484-509``; absolute-unit rates
-        such as the drift lr differ), and Birthday / Painter / Train use 2.5e-4 for the dynamic SH (ours share
-        one SH rate)."""
+        such as the drift lr differ)."""
         return cls(time_pad=3, centers_lr=1e-3, extract_every=3777, near=0.01)
 
     @classmethod
@@ -1004,9 +1014,11 @@ class Ex4DGSExpert(Expert):
             ("widths", c.widths_lr),
         ]
         # the dynamic set counts its own steps, from the first conversion (moegs.train.set_optim)
-        return splat_param_groups(
+        groups = splat_param_groups(
             s, c, sc, constant, eps=c.optimizer_eps, optimizer=c.optimizer, second_set=self._dynamic_rows
         )
+        own_rates = {"sh0": c.motion_sh0_lr, "shN": c.motion_shN_lr}  # the dynamic set's colour
+        return [replace(g, second_lr=own_rates[g.name]) if g.name in own_rates else g for g in groups]
 
     def _dynamic_rows(self) -> Tensor:
         """The ``dynamic`` flags ``[N]`` of the current splats (densification replaces the tensor)."""

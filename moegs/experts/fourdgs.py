@@ -76,7 +76,10 @@ class FourDGSField(nn.Module):
 @dataclass
 class FourDGSStrategy(ADCStrategy):
     """4DGaussians' densification: 3DGS clone/split and a separate prune step, gated by N, on a counter
-    that restarts with the fine stage. Per-view screen gradients of a batch are summed before the norm."""
+    that restarts with the fine stage. Per-view screen gradients of a batch are summed before the norm
+    (``train.py:195-196, 223-225, 262``)."""
+
+    batch_stats: str = "summed"
 
     coarse_iterations: int = 3000
     """Length of the coarse stage; the fine stage restarts every counter below at 1."""
@@ -100,22 +103,6 @@ class FourDGSStrategy(ADCStrategy):
     def stage_step(self, step: int) -> int:
         """The iteration counter of the current stage (1-based; restarts after ``coarse_iterations``)."""
         return step - self.coarse_iterations if step > self.coarse_iterations else step
-
-    def _update_stats(self, params, state: dict, info: dict) -> None:
-        n = params["means"].shape[0]
-        if state["grad2d"] is None or state["grad2d"].shape[0] != n:
-            self._reset_stats(state, n, params["means"].detach())
-        total, visible, radii = None, None, None
-        for r in info["renders"]:
-            if r["means2d"].grad is None:
-                raise RuntimeError("FourDGSStrategy: means2d has no gradient; render with return_stats=True")
-            g = r["means2d"].grad * r["means2d"].new_tensor([r["width"] / 2.0, r["height"] / 2.0])
-            total = g if total is None else total + g
-            visible = r["visible"] if visible is None else visible | r["visible"]
-            radii = r["radii"].float() if radii is None else torch.maximum(radii, r["radii"].float())
-        state["grad2d"][visible] += total[visible].norm(dim=-1)
-        state["count"][visible] += 1
-        state["max_radii"][visible] = torch.maximum(state["max_radii"][visible], radii[visible])
 
     @torch.no_grad()
     def _densify(self, params, optimizers, state: dict) -> None:

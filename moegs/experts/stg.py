@@ -266,8 +266,12 @@ class STGStrategy(ADCStrategy):
 
     Densify modes of the original: 1 (N3V) = the defaults; 2 (coffee_martini, flame_salmon_1) = prune until
     9000, ω mask to 8999, no late prunes; 3 (Technicolor) = 12 events, bbox prune only.
-    Deviation: the screen-space statistics use both views of a step (STG: only the last one).
+    The screen-space statistics (gradient, visibility count, largest radius) come from the last view of a
+    step only (``batch_stats="last"``): STG hands ``add_densification_stats`` the tensors of its last render
+    (``train.py:257-258``), whose gradient is that view's own loss.
     """
+
+    batch_stats: str = "last"
 
     densify_from: int = 500
     densify_until: int = 9000

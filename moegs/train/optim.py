@@ -39,7 +39,9 @@ class Optimizers:
             if g.second_set is None:
                 self.optimizers[g.name] = _OPTIMIZERS[g.optimizer](params, lr=g.lr, **options)
             else:
-                self.optimizers[g.name] = SetOptimizer(params, g.optimizer, g.second_set, lr=g.lr, **options)
+                self.optimizers[g.name] = SetOptimizer(
+                    params, g.optimizer, g.second_set, lr=g.lr, second_lr=g.second_lr, **options
+                )
 
     def for_splats(self, splats: nn.ParameterDict) -> dict[str, torch.optim.Optimizer]:
         """Map each trainable per-Gaussian key to the optimiser holding it (for strategy ops).

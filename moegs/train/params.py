@@ -33,3 +33,11 @@ class ParamGroup:
     second_set: Callable[[], Tensor] | None = None
     """Which rows ``[N]`` of each tensor belong to a second set of Gaussians that counts its own optimiser
     steps (``moegs.train.set_optim``; Ex4DGS's dynamic set); None: one set."""
+    second_lr: float | None = None
+    """Constant rate of the second set's rows (None: the group's, scheduled with it)."""
+
+    def __post_init__(self) -> None:
+        if self.second_lr is not None and (self.second_set is None or self.lr_final is not None):
+            raise ValueError(
+                f"param group {self.name!r}: second_lr needs a second_set and a constant lr (lr_final=None)"
+            )

@@ -10,7 +10,8 @@ every update from the first one at which it holds a row (an emptied tensor keeps
 original).
 
 Moments are per row, so densification (``moegs.train.strategy.ops``) keeps them in step as for Adam; the
-two counts are scalars and are kept.
+two counts are scalars and are kept. The second set may learn at its own constant rate (``second_lr``:
+Ex4DGS's ``feature_motion_lr``, 2.5e-4 on Technicolor Birthday, Painter and Train, ``configs/techni/*.json``).
 """
 
 from __future__ import annotations
@@ -27,8 +28,8 @@ KINDS = ("adam", "radam")
 
 class SetOptimizer(torch.optim.Optimizer):
     """torch's Adam or RAdam (``kind``; no weight decay) where ``second_set() -> [N]`` bool marks the rows
-    of each parameter ``[N, ...]`` that count steps in ``state["step_second"]``; the others count in
-    ``state["step"]``."""
+    of each parameter ``[N, ...]`` that count steps in ``state["step_second"]`` and learn at
+    ``second_lr`` (None: the group's ``lr``); the others count in ``state["step"]``."""
 
     def __init__(
         self,
@@ -38,10 +39,11 @@ class SetOptimizer(torch.optim.Optimizer):
         lr: float = 1e-3,
         betas: tuple[float, float] = (0.9, 0.999),
         eps: float = 1e-8,
+        second_lr: float | None = None,
     ) -> None:
         if kind not in KINDS:
             raise ValueError(f"SetOptimizer: kind must be one of {KINDS}, got {kind!r}")
-        super().__init__(params, {"lr": lr, "betas": betas, "eps": eps})
+        super().__init__(params, {"lr": lr, "betas": betas, "eps": eps, "second_lr": second_lr})
         self.kind, self.second_set = kind, second_set
 
     @torch.no_grad()
@@ -66,28 +68,37 @@ class SetOptimizer(torch.optim.Optimizer):
                 f"SetOptimizer: second_set() gives {tuple(second.shape)} rows for {tuple(p.shape)}"
             )
         moments = (state["exp_avg"], state["exp_avg_sq"])
-        for key, rows in (("step", ~second), ("step_second", second)):
+        second_lr = group["lr"] if group["second_lr"] is None else group["second_lr"]
+        for key, rows, lr in (("step", ~second, group["lr"]), ("step_second", second, second_lr)):
             if not (bool(rows.any()) or float(state[key]) > 0):
                 continue  # the set has never held a row: its tensors are not in the original's optimiser yet
             if bool(rows.all()):
-                self._functional(group, p, p.grad, *moments, state[key])
+                self._functional(group, lr, p, p.grad, *moments, state[key])
                 continue
             idx = rows.nonzero(as_tuple=True)[0]
             part, part_moments = p[idx], [m[idx] for m in moments]
-            self._functional(group, part, p.grad[idx], *part_moments, state[key])
+            self._functional(group, lr, part, p.grad[idx], *part_moments, state[key])
             p[idx] = part
             for m, part_m in zip(moments, part_moments, strict=True):
                 m[idx] = part_m
 
     def _functional(
-        self, group: dict, param: Tensor, grad: Tensor, exp_avg: Tensor, exp_avg_sq: Tensor, step: Tensor
+        self,
+        group: dict,
+        lr: float,
+        param: Tensor,
+        grad: Tensor,
+        exp_avg: Tensor,
+        exp_avg_sq: Tensor,
+        step: Tensor,
     ) -> None:
-        """One update of one set's rows by torch's single-tensor implementation (``step`` counts up)."""
+        """One update of one set's rows at rate ``lr`` by torch's single-tensor implementation (``step``
+        counts up)."""
         beta1, beta2 = group["betas"]
         options = {
             "beta1": beta1,
             "beta2": beta2,
-            "lr": group["lr"],
+            "lr": lr,
             "weight_decay": 0.0,
             "eps": group["eps"],
         }

@@ -109,6 +109,7 @@ ROWS = [
     ("fourdgs", "n3v:cook_spinach", "time_resolution", 150),  # arguments/dynerf/default.py:6
     ("fourdgs", "n3v:cook_spinach", "feature_dim", 16),  # arguments/dynerf/default.py:5
     ("fourdgs", "n3v:cook_spinach", "width", 128),  # arguments/dynerf/default.py:10
+    ("fourdgs", "n3v:cook_spinach", "strategy.batch_stats", "summed"),  # train.py:195-196, 223-225, 262
     ("fourdgs", "n3v:cook_spinach", "time_smoothness_weight", 1e-3),  # arguments/dynerf/default.py:12
     ("fourdgs", "hypernerf:chicken", "time_resolution", 80),  # arguments/hypernerf/chicken.py:7
     ("fourdgs", "hypernerf:peel-banana", "time_resolution", 250),  # arguments/hypernerf/banana.py:7
@@ -127,6 +128,9 @@ ROWS = [
     ("ed3dgs", "n3v:cook_spinach", "multiview_ssim_iters", 5),  # arguments/dynerf/default.py:38
     ("ed3dgs", "n3v:cook_spinach", "smoothness_reg", 1.0),  # arguments/dynerf/default.py:40
     ("ed3dgs", "n3v:cook_spinach", "width", 128),  # arguments/dynerf/default.py:7
+    ("ed3dgs", "n3v:cook_spinach", "strategy.batch_stats", "summed"),  # train.py:204-206, 250
+    ("ed3dgs", "hypernerf:chicken", "strategy.batch_stats", "summed"),  # train.py:204-206, 250
+    ("stg", "n3v:cook_spinach", "strategy.batch_stats", "last"),  # train.py:257-258
     ("ed3dgs", "n3v:flame_steak", "strategy.grad_threshold", 2e-4),  # arguments/dynerf/flame_steak.py:4-5
     ("ed3dgs", "technicolor:birthday", "min_embeddings", 5),  # arguments/technicolor/default.py:13
     ("ed3dgs", "technicolor:birthday", "max_embeddings", 25),  # arguments/technicolor/default.py:14
@@ -198,6 +202,11 @@ ROWS = [
     ("ex4dgs", "technicolor:birthday", "strategy.densify_every", 250),  # configs/techni/Birthday.json:15
     ("ex4dgs", "technicolor:birthday", "extract_every", 1777),  # configs/techni/Birthday.json:25
     ("ex4dgs", "technicolor:painter", "train.iterations", 30_000),  # configs/techni/Painter.json:12
+    ("ex4dgs", "n3v:cook_spinach", "motion_sh0_lr", 2.5e-3),  # arguments/__init__.py:106
+    ("ex4dgs", "technicolor:fabien", "motion_sh0_lr", 2.5e-3),  # Fabien.json leaves the default
+    ("ex4dgs", "technicolor:birthday", "motion_sh0_lr", 2.5e-4),  # configs/techni/Birthday.json:20
+    ("ex4dgs", "technicolor:painter", "motion_shN_lr", 2.5e-4 / 20),  # Painter.json:20 (/20: :441)
+    ("ex4dgs", "technicolor:train", "motion_sh0_lr", 2.5e-4),  # configs/techni/Train.json:20
     ("ex4dgs", "technicolor:train", "extract_percentile", 0.99),  # configs/techni/Train.json:27
 ]
 

@@ -288,6 +288,19 @@ def _with_moments_and_grads(expert) -> dict:
     return optimizers.for_splats(expert.splats)
 
 
+def test_the_dynamic_colour_learns_at_feature_motion_lr():
+    """``c_gaussian_model.py:432-441``: static SH at ``feature_lr`` (/20 for the higher bands), dynamic SH
+    at ``feature_motion_lr`` (2.5e-4 on Technicolor Birthday, Painter, Train); the other groups share one
+    rate between the sets."""
+    expert, _ = _expert(motion_sh0_lr=2.5e-4, motion_shN_lr=2.5e-4 / 20)
+    groups = {g.name: g for g in expert.param_groups()}
+    assert (groups["sh0"].lr, groups["sh0"].second_lr) == (2.5e-3, 2.5e-4)
+    assert (groups["shN"].lr, groups["shN"].second_lr) == (2.5e-3 / 20, 2.5e-4 / 20)
+    assert all(g.second_lr is None for name, g in groups.items() if name not in ("sh0", "shN"))
+    sets = Optimizers(expert.param_groups()).optimizers
+    assert sets["sh0"].param_groups[0]["second_lr"] == 2.5e-4
+
+
 def _moment(optimizers, expert, key) -> Tensor:
     return optimizers[key].state[expert.splats[key]]["exp_avg"]
 

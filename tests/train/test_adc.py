@@ -6,6 +6,9 @@ import pytest
 import torch
 from torch import nn
 
+from moegs.experts.ed3dgs import ED3DGSStrategy
+from moegs.experts.fourdgs import FourDGSStrategy
+from moegs.experts.stg import STGStrategy
 from moegs.train.optim import Optimizers
 from moegs.train.params import ParamGroup
 from moegs.train.strategy import ADCStrategy
@@ -53,6 +56,31 @@ def test_gradient_is_accumulated_in_ndc_units():
     strategy.step_post_backward(params, opts, state, 2, info)
     torch.testing.assert_close(state["grad2d"], torch.tensor([1e-4 + 2e-4, 2e-4 + 1e-4, 0.0]))
     torch.testing.assert_close(state["count"], torch.tensor([3.0, 2.0, 0.0]))
+
+
+def test_a_steps_views_enter_the_statistics_as_each_methods_code_has_it():
+    """Two views, the loss their mean. 3DGS / gsplat: each view's norm (times the batch) and a count per
+    view; 4DGaussians / E-D3DGS: the gradients summed before the norm, one count for any view; STG: the last
+    view's tensors only (``train.py:257-258``), its gradient times the batch."""
+    params, _ = _params([0.001] * 3, [0.5] * 3)
+    first = _render([[4e-6, 0.0], [2e-6, 0.0], [0.0, 0.0]], [True, True, False], radii=[9, 9, 9])
+    last = _render([[0.0, 0.0], [-1e-6, 0.0], [1e-6, 0.0]], [False, True, True], radii=[2, 4, 6])
+    expected = {  # grad2d (NDC: 50 gx), count, max_radii
+        "per_view": ([4e-4, 3e-4, 1e-4], [1, 2, 1], [9, 9, 6]),
+        "summed": ([2e-4, 0.5e-4, 0.5e-4], [1, 1, 1], [9, 9, 6]),
+        "last": ([0.0, 1e-4, 1e-4], [0, 1, 1], [0, 4, 6]),
+    }
+    for convention, (grad2d, count, max_radii) in expected.items():
+        strategy = ADCStrategy(batch_stats=convention)
+        state = strategy.initialize_state(1.0)
+        strategy._update_stats(params, state, {"renders": [first, last]})
+        torch.testing.assert_close(state["grad2d"], torch.tensor(grad2d), msg=convention)
+        torch.testing.assert_close(state["count"], torch.tensor(count, dtype=torch.float32), msg=convention)
+        torch.testing.assert_close(state["max_radii"], torch.tensor(max_radii, dtype=torch.float32))
+    assert STGStrategy().batch_stats == "last" and FourDGSStrategy().batch_stats == "summed"
+    assert ED3DGSStrategy().batch_stats == "summed"
+    with pytest.raises(ValueError, match=r"ADCStrategy.batch_stats must be one of .*got 'mean'"):
+        ADCStrategy(batch_stats="mean")
 
 
 def test_densify_clones_small_splits_large_prunes_transparent():

@@ -90,3 +90,31 @@ def test_a_group_with_a_second_set_gets_a_set_optimizer(kind):
     optimizers = Optimizers([ParamGroup("x", [p], 0.1, optimizer=kind, second_set=lambda: rows)])
     opt = optimizers.optimizers["x"]
     assert isinstance(opt, SetOptimizer) and opt.kind == kind and opt.second_set() is rows
+
+
+@pytest.mark.parametrize("kind", ["adam", "radam"])
+def test_the_second_set_learns_at_its_own_rate(kind):
+    """Ex4DGS's dynamic colour on Technicolor Birthday (``feature_motion_lr`` 2.5e-4 against 2.5e-3): each
+    set moves as torch's optimiser at its own rate on its own tensor."""
+    start = torch.randn(8, 3, generator=torch.Generator().manual_seed(1))
+    second = torch.arange(8) % 2 == 1
+    ours = torch.nn.Parameter(start.clone())
+    opt = SetOptimizer([ours], kind, lambda: second, **OPTIONS, second_lr=0.001)
+    refs = [torch.nn.Parameter(start[rows].clone()) for rows in (~second, second)]
+    ref_opts = [TORCH[kind]([refs[0]], **OPTIONS), TORCH[kind]([refs[1]], **{**OPTIONS, "lr": 0.001})]
+    for grad in _grads(12):
+        _step(opt, ours, grad)
+        for ref, ref_opt, rows in zip(refs, ref_opts, (~second, second), strict=True):
+            _step(ref_opt, ref, grad[rows])
+    assert torch.equal(ours[~second], refs[0]) and torch.equal(ours[second], refs[1])
+
+
+def test_a_second_rate_needs_a_second_set_and_a_constant_rate():
+    p = torch.nn.Parameter(torch.zeros(4, 3))
+    rows = torch.zeros(4, dtype=torch.bool)
+    with pytest.raises(ValueError, match="'x': second_lr needs a second_set"):
+        ParamGroup("x", [p], 0.1, second_lr=0.01)
+    with pytest.raises(ValueError, match="'x': second_lr needs a second_set and a constant lr"):
+        ParamGroup("x", [p], 0.1, lr_final=0.001, second_set=lambda: rows, second_lr=0.01)
+    group = ParamGroup("x", [p], 0.1, second_set=lambda: rows, second_lr=0.01)
+    assert Optimizers([group]).optimizers["x"].param_groups[0]["second_lr"] == 0.01

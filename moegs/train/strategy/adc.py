@@ -3,9 +3,13 @@
 Screen-space gradient convention. 3DGS thresholds the norm of the gradient of the loss with
 respect to the projected mean *in NDC units*: its CUDA backward multiplies the pixel gradient by
 ``0.5 * W`` (x) and ``0.5 * H`` (y). ``rasterize`` returns ``means2d`` in pixels, so the pixel
-gradient is scaled by ``(W / 2, H / 2)`` here; the batch-mean loss divides each view's gradient by
-the batch size, which is multiplied back (gsplat ``DefaultStrategy`` does the same). With that,
-``grad_threshold = 0.0002`` means what it means in 3DGS.
+gradient is scaled by ``(W / 2, H / 2)`` here. With that, ``grad_threshold = 0.0002`` means what it
+means in 3DGS.
+
+A step of several views enters the statistics as its method's code has it (``ADCStrategy.batch_stats``).
+The loss here is the mean over the step's views, as in 4DGaussians and E-D3DGS; STG backpropagates each
+view's loss on its own, and gsplat's ``DefaultStrategy`` multiplies the batch size back, so those two
+conventions scale each view's gradient by the batch size.
 """
 
 from __future__ import annotations
@@ -18,6 +22,8 @@ from torch import Tensor
 
 from moegs.train.strategy import ops
 from moegs.train.strategy.base import Strategy
+
+BATCH_STATS = ("per_view", "summed", "last")
 
 
 @dataclass
@@ -56,6 +62,12 @@ class ADCStrategy(Strategy):
     """Opacity reset to ``min(opacity, reset_value)``."""
     reset_at_densify_from_if_white: bool = True
     """3DGS also resets at ``step == densify_from`` when the background is white."""
+    batch_stats: str = "per_view"
+    """How the views of one step enter the screen-space statistics: ``"per_view"`` (3DGS, gsplat: each
+    view adds its gradient norm, times the batch size, and a count where it sees the Gaussian),
+    ``"summed"`` (4DGaussians and E-D3DGS ``train.py``: the views' gradients are summed before the norm, and
+    a Gaussian seen by any view counts once) or ``"last"`` (STG ``train.py:257-258``: the last view's
+    gradient, times the batch size, visibility and radii)."""
     prune_after_reset_only: bool = False
     """Prune nothing, not even low opacity, until ``step > reset_every`` (Grid4D calls ``prune_points``
     inside ``if max_screen_size:``, ``scene/gaussian_model.py:374-380``)."""
@@ -81,30 +93,50 @@ class ADCStrategy(Strategy):
         for key in ("grad2d", "count", "max_radii"):
             state[key] = state[key][~prune]
 
+    def __post_init__(self) -> None:
+        if self.batch_stats not in BATCH_STATS:
+            raise ValueError(
+                f"{type(self).__name__}.batch_stats must be one of {BATCH_STATS}, got {self.batch_stats!r}"
+            )
+
+    def _ndc_gradients(self, renders: list[dict], n: int) -> list[Tensor]:
+        """Each view's ``∂L/∂μ2D`` in NDC units ``[N, 2]`` (checked: one row per Gaussian, a gradient)."""
+        out = []
+        for r in renders:
+            means2d = r["means2d"]
+            if means2d.shape[0] != n:
+                raise ValueError(
+                    f"{type(self).__name__} needs one projected mean per Gaussian: got {means2d.shape[0]}, "
+                    f"the expert has {n} (frame() must return every Gaussian)"
+                )
+            if means2d.grad is None:
+                raise RuntimeError(
+                    f"{type(self).__name__}: means2d has no gradient; render with return_stats=True "
+                    "and call step_post_backward after loss.backward()"
+                )
+            out.append(means2d.grad * means2d.new_tensor([r["width"] / 2.0, r["height"] / 2.0]))
+        return out
+
     def _update_stats(self, params, state: dict, info: dict) -> None:
         n = params["means"].shape[0]
         if state["grad2d"] is None or state["grad2d"].shape[0] != n:
             self._reset_stats(state, n, params["means"].detach())
         renders = info["renders"]
-        for r in renders:
-            means2d = r["means2d"]
-            if means2d.shape[0] != n:
-                raise ValueError(
-                    f"ADCStrategy needs one projected mean per Gaussian: got {means2d.shape[0]}, "
-                    f"the expert has {n} (frame() must return every Gaussian)"
-                )
-            if means2d.grad is None:
-                raise RuntimeError(
-                    "ADCStrategy: means2d has no gradient; render with return_stats=True "
-                    "and call step_post_backward after loss.backward()"
-                )
-            visible = r["visible"]
-            ndc = means2d.grad * means2d.new_tensor([r["width"] / 2.0, r["height"] / 2.0]) * len(renders)
-            state["grad2d"] += torch.where(visible, ndc.norm(dim=-1), 0.0)
-            state["count"] += visible
-            state["max_radii"] = torch.maximum(
-                state["max_radii"], torch.where(visible, r["radii"].float(), 0.0)
-            )
+        grads = self._ndc_gradients(renders, n)
+        visible = [r["visible"] for r in renders]
+        radii = [r["radii"].float() for r in renders]
+        if self.batch_stats == "summed":
+            grads = [sum(grads[1:], grads[0])]
+            visible = [torch.stack(visible).any(dim=0)]
+            radii = [torch.stack(radii).amax(dim=0)]
+        else:
+            if self.batch_stats == "last":
+                grads, visible, radii = grads[-1:], visible[-1:], radii[-1:]
+            grads = [g * len(renders) for g in grads]  # the batch-mean loss divided each view's gradient
+        for g, seen, r in zip(grads, visible, radii, strict=True):
+            state["grad2d"] += torch.where(seen, g.norm(dim=-1), 0.0)
+            state["count"] += seen
+            state["max_radii"] = torch.maximum(state["max_radii"], torch.where(seen, r, 0.0))
 
     # -- refinement -------------------------------------------------------------------------------
     @torch.no_grad()
