@@ -41,7 +41,8 @@ SPEC = Spec(
         ),
     ),
     motion=True,
-    notes="STG† (150-frame split) is one STG model over the preset's frame window. N=2: {Ex4DGS, STG}, "
+    notes="STG† trains one model per 150 frames (moegs.train.segments); the CPU presets' frame windows "
+    "are one segment. N=2: {Ex4DGS, STG}, "
     "N=3: + E-D3DGS, N=4: + 4DGaussians.",
 )
 

@@ -70,11 +70,11 @@ def _run_dir(path: str) -> tuple[Path, dict]:
 
 def _load_run(path: str):
     """``(run folder, run config, scene, expert)`` of a finished or interrupted run."""
-    from moegs.train.checkpoint import load_expert
+    from moegs.train.entry import load_trained
 
     run, meta = _run_dir(path)
     scene = _load_scene(meta)
-    expert, _ = load_expert(run, scene, expect=meta["expert"])
+    expert, _ = load_trained(run, scene, expect=meta["expert"])
     return run, meta, scene, expert
 
 

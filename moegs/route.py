@@ -56,7 +56,7 @@ def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress
     from moegs.compare import preset_frames, run_expert, scene_kwargs
     from moegs.data import load_scene
     from moegs.recipes import config_for
-    from moegs.train.checkpoint import load_expert
+    from moegs.train.entry import load_trained
     from moegs.train.reuse import describe_changes, reusable_run
 
     recipes = [config_for(n, scene_name, preset) for n in names]
@@ -87,7 +87,7 @@ def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress
                 file=sys.stderr,
             )
     scene = load_scene(scene_name, **scene_kwargs(recipes[0], frames))
-    return [load_expert(out / name, scene)[0] for name in names], scene
+    return [load_trained(out / name, scene)[0] for name in names], scene
 
 
 def composites_background(scene_name: str) -> bool:

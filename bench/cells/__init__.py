@@ -103,4 +103,4 @@ def experts_missing(names: list[str]) -> list[str]:
 
 
 TRAIN_LOOP = "moegs.train.loop:train"
-LOAD_EXPERT = "moegs.train.checkpoint:load_expert"
+LOAD_EXPERT = "moegs.train.entry:load_trained"

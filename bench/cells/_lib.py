@@ -71,12 +71,12 @@ def recipe_of(ctx: Any, task: Task, expert: str | None = None, extra: dict | Non
 def load_trained_expert(ctx: Any, build: Task, scene: Any = None):
     """The trained expert of a build task, in eval mode, on ``scene`` (default: the task's scene on its
     recipe's background)."""
-    from moegs.train.checkpoint import load_expert
+    from moegs.train.entry import load_trained
 
     folder = ctx.artifact(build)
     if scene is None:
         scene = ctx.scene(build, recipe_of(ctx, build).background)
-    expert, _state = load_expert(folder, scene)
+    expert, _state = load_trained(folder, scene)
     return expert
 
 

@@ -116,8 +116,10 @@ class STGConfig(ExpertConfig):
     """Full model: ``"sigmoid"`` (N3V ``sandwich``) or ``"clamp"`` (Technicolor ``sandwichnoact``)."""
     sh_degree: int = 3
     """SH degree of the ``"sh"`` variant (+1 every 1000 iterations)."""
-    segment_frames: int | None = None
-    """Frames per segment model (STG: 50; MoE-GS N3V: 150); None = one model for the whole scene."""
+    segment_frames: int | None = 50
+    """Frames per segment model (STG's ``duration``: 50, ``configs/n3d_full/*.json:7``,
+    ``configs/techni_full/*.json:10``; MoE-GS N3V: 150); None = one model for the whole scene.
+    ``moegs.train.entry.train_recipe`` trains a scene of more frames in segments."""
     max_init_points: int | None = None
     """Keep at most this many initial points (random subset); None keeps all (STG: every frame's SfM)."""
     trbf_scale_init: float = 0.0
@@ -639,6 +641,8 @@ class STGSegments(nn.Module):
     """Segment models answering any global time: ``frame(t)`` picks the segment holding ``t`` and queries it
     at local time ``(t - start) / (stop - start)``; ``decode`` and ``render`` pick it by ``camera.time``."""
 
+    name: ClassVar[str] = "stg"
+
     def __init__(self, models: list[STGExpert], bounds: list[tuple[float, float]]) -> None:
         super().__init__()
         if len(models) != len(bounds) or not models:
@@ -657,6 +661,11 @@ class STGSegments(nn.Module):
         k = self.segment(t)
         start, stop = self.bounds[k]
         return self.models[k], (t - start) / (stop - start)
+
+    @property
+    def config(self) -> STGConfig:
+        """The segments' shared config."""
+        return self.models[0].config
 
     @property
     def num_gaussians(self) -> int:

@@ -1,5 +1,7 @@
 """The one way a resolved recipe becomes a trained expert: seed, build, train (``moegs train``,
-``moegs compare``, ``moegs route`` and every bench cell call :func:`train_recipe`)."""
+``moegs compare``, ``moegs route`` and every bench cell call :func:`train_recipe`), and the one way a run
+folder becomes that expert again (:func:`load_trained`). A recipe whose expert trains in temporal segments
+(STG's ``segment_frames``) trains and loads as ``moegs.train.segments`` does."""
 
 from __future__ import annotations
 
@@ -13,7 +15,9 @@ from moegs.data.scene import Scene
 from moegs.experts import get_expert_class
 from moegs.experts.base import Expert
 from moegs.recipes import Recipe
+from moegs.train.checkpoint import load_expert
 from moegs.train.loop import train
+from moegs.train.segments import SEGMENTS_NAME, load_segments, scene_segments, train_segments
 
 
 def build_expert(recipe: Recipe, scene: Scene) -> Expert:
@@ -40,7 +44,21 @@ def train_recipe(
     recipe: Recipe, scene: Scene, out_dir: str | Path | None = None, **kwargs: Any
 ) -> tuple[Expert, dict[str, Any]]:
     """Build and train the expert of ``recipe`` on ``scene`` (loaded with ``recipe.load_kwargs``);
-    ``kwargs`` go to ``moegs.train.loop.train``. Returns the expert (eval mode) and the loop's result."""
+    ``kwargs`` go to ``moegs.train.loop.train``. Returns the expert (eval mode) and the loop's result; an
+    expert with several temporal segments on ``scene`` trains one model per segment
+    (``moegs.train.segments.train_segments``: an ``STGSegments`` and the whole run's result)."""
+    if len(scene_segments(scene, recipe.config)) > 1:
+        return train_segments(scene, recipe.config, out_dir, recipe=recipe.provenance(), **kwargs)
     expert = build_expert(recipe, scene)
     result = train(expert, scene, out_dir=out_dir, recipe=recipe.provenance(), **kwargs)
     return expert, result
+
+
+def load_trained(out_dir: str | Path, scene: Scene, expect: str | None = None) -> tuple[Any, dict[str, Any]]:
+    """The trained expert of the run folder ``out_dir`` on ``scene`` (eval mode) and its state: the
+    ``STGSegments`` of a segmented run (``segments.json``), else ``moegs.train.checkpoint.load_expert``'s
+    expert (``expect`` refuses another expert's run, naming both)."""
+    out = Path(out_dir)
+    if (out / SEGMENTS_NAME).is_file():
+        return load_segments(out, scene, expect=expect)
+    return load_expert(out, scene, expect=expect)

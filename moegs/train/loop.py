@@ -194,6 +194,29 @@ class TrainingRun:
         return float(loss.detach())
 
 
+def write_run_config(
+    out_dir: Path,
+    name: str,
+    scene: Scene,
+    config: Any,
+    train_config: TrainConfig,
+    recipe: dict[str, Any] | None,
+) -> None:
+    """``out_dir/config.json``: what a run trains (expert ``name``, scene, expert and training configs, and
+    the recipe's provenance), read by ``moegs.train.reuse`` and ``moegs eval``."""
+    write_json(
+        out_dir / "config.json",
+        {
+            "expert": name,
+            "scene": scene.name,
+            "stand_in": scene.stand_in,
+            "config": to_dict(config),
+            "train": to_dict(train_config),
+            "recipe": recipe,
+        },
+    )
+
+
 def train(
     expert: Expert,
     scene: Scene,
@@ -243,17 +266,7 @@ def train(
             run.resume(ckpt)
             resumed_from = run.step
         if out is not None:
-            write_json(
-                out / "config.json",
-                {
-                    "expert": expert.name,
-                    "scene": scene.name,
-                    "stand_in": scene.stand_in,
-                    "config": to_dict(expert.config),
-                    "train": to_dict(config),
-                    "recipe": recipe,
-                },
-            )
+            write_run_config(out, expert.name, scene, expert.config, config, recipe)
 
         last = config.iterations if stop_after is None else min(stop_after, config.iterations)
         test_views = eval_views(scene.test, config.max_eval_views)

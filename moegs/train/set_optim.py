@@ -4,8 +4,9 @@ Ex4DGS keeps its static and dynamic Gaussians in separate tensors, each with its
 dynamic tensors only enter the optimiser at the first static-to-dynamic conversion
 (``c_gaussian_model.py:78-86, 439-449, 765-787``), so their step count, which sets the bias corrections
 (and RAdam's rectification), starts there. This suite keeps both sets in one tensor per attribute with a
-``dynamic`` flag; ``SetOptimizer`` updates each set's rows with torch's own functional Adam or RAdam and
-that set's step count, so every row moves bit for bit as it would in its own set's tensor. A set counts
+``dynamic`` flag; ``SetOptimizer`` updates each set's rows with torch's own functional Adam or RAdam
+(its ``foreach`` implementation, the CUDA default, as ``moegs.train.optim``) and that set's step count, so
+every row moves bit for bit as it would in its own set's tensor. A set counts
 every update from the first one at which it holds a row (an emptied tensor keeps being stepped in the
 original).
 
@@ -92,8 +93,8 @@ class SetOptimizer(torch.optim.Optimizer):
         exp_avg_sq: Tensor,
         step: Tensor,
     ) -> None:
-        """One update of one set's rows at rate ``lr`` by torch's single-tensor implementation (``step``
-        counts up)."""
+        """One update of one set's rows at rate ``lr`` by torch's foreach implementation (``step`` counts
+        up)."""
         beta1, beta2 = group["betas"]
         options = {
             "beta1": beta1,
@@ -104,6 +105,6 @@ class SetOptimizer(torch.optim.Optimizer):
         }
         tensors = ([param], [grad], [exp_avg], [exp_avg_sq])
         if self.kind == "adam":
-            adam_update(*tensors, [], [step], foreach=False, amsgrad=False, maximize=False, **options)
+            adam_update(*tensors, [], [step], foreach=True, amsgrad=False, maximize=False, **options)
         else:
-            radam_update(*tensors, [step], foreach=False, **options)
+            radam_update(*tensors, [step], foreach=True, **options)

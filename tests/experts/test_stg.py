@@ -23,9 +23,11 @@ from moegs.experts.stg import (
     temporal_opacity,
 )
 from moegs.experts.stg_decoder import FeatureDecoder
+from moegs.recipes import config_for
 from moegs.train.config import TrainConfig
+from moegs.train.entry import finished_run, load_trained, train_recipe
 from moegs.train.optim import Optimizers
-from moegs.train.segments import train_segments
+from moegs.train.segments import SEGMENTS_NAME, train_segments
 
 
 def monocular(scene):
@@ -175,11 +177,12 @@ def test_segments_answer_global_time_with_local_models():
     config.segment_frames = 2
     config.max_init_points = 60
     config.train = TrainConfig(iterations=3, lambda_dssim=0.2)
-    segments, results = train_segments(scene, config)
+    segments, result = train_segments(scene, config)
     assert (
         isinstance(segments, STGSegments)
         and len(segments.models) == 2
-        and all(r["completed"] for r in results)
+        and result["completed"]
+        and [r["completed"] for r in result["segments"]] == [True, True]
     )
     model, local = segments.locate(2 / 3)
     assert model is segments.models[1] and local == pytest.approx(0.0)
@@ -187,3 +190,52 @@ def test_segments_answer_global_time_with_local_models():
     rgb, _, _ = segments.render(cam, scene.background)
     assert rgb.shape == (cam.height, cam.width, 3)
     assert segments.num_gaussians == sum(m.num_gaussians for m in segments.models)
+
+
+def test_stg_recipes_train_fifty_frame_segments_as_the_original():
+    """``duration`` 50 in every STG config (configs/n3d_full/*.json:7, techni_full/*.json:10); STG† 150."""
+    assert config_for("stg", "n3v:cook_spinach", "paper").config.segment_frames == 50
+    assert config_for("stg", "technicolor:birthday", "paper").config.segment_frames == 50
+    assert STGConfig.moe_sh().segment_frames == 150
+
+
+def test_a_segmented_recipe_trains_resumes_and_loads_as_one_run(tmp_path):
+    scene = with_times(tiny_scene(num_frames=4, cameras=2))
+    overrides = {"segment_frames": 2, "max_init_points": 60, "train.iterations": 3, "train.eval_every": 0}
+    recipe = config_for("stg", "synthetic:n3v_like", "quick", overrides=overrides)
+    segments, result = train_recipe(recipe, scene, tmp_path, progress=False)
+    assert isinstance(segments, STGSegments) and len(segments.models) == 2
+    assert {p.name for p in tmp_path.iterdir()} >= {
+        SEGMENTS_NAME,
+        "config.json",
+        "metrics.json",
+        "segment_0",
+        "segment_1",
+    }
+    assert (result["step"], result["iterations"], result["num_gaussians"]) == (6, 6, segments.num_gaussians)
+    # the whole run is scored with the wrapper at global time, on every test view of the scene
+    assert result["test"]["num_views"] == len(scene.test) and finished_run(tmp_path)["test"] == result["test"]
+    loaded, state = load_trained(tmp_path, scene, expect="stg")
+    assert (
+        isinstance(loaded, STGSegments) and len(state["segments"]) == 2 and loaded.bounds == segments.bounds
+    )
+    cam = scene.test[-1].camera
+    with torch.no_grad():
+        assert torch.equal(loaded.render(cam, scene.background)[0], segments.render(cam, scene.background)[0])
+    with pytest.raises(ValueError, match="segmented 'stg' run, but its run says 'grid4d'"):
+        load_trained(tmp_path, scene, expect="grid4d")
+    _, again = train_recipe(recipe, scene, tmp_path, progress=False)  # finished segments are not retrained
+    assert again["resumed_from"] == [3, 3] and again["test"]["psnr"] == result["test"]["psnr"]
+
+
+def test_a_segmented_run_stopped_early_is_not_finished(tmp_path):
+    scene = with_times(tiny_scene(num_frames=4, cameras=2))
+    recipe = config_for(
+        "stg",
+        "synthetic:n3v_like",
+        "quick",
+        overrides={"segment_frames": 2, "max_init_points": 60, "train.iterations": 3},
+    )
+    segments, result = train_recipe(recipe, scene, tmp_path, progress=False, stop_after=2)
+    assert len(segments.models) == 1 and not result["completed"] and result["test"] is None
+    assert finished_run(tmp_path) is None and not (tmp_path / "segment_1").exists()

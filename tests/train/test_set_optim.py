@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 import pytest
 import torch
 
@@ -9,7 +11,10 @@ from moegs.train.optim import Optimizers
 from moegs.train.params import ParamGroup
 from moegs.train.set_optim import SetOptimizer
 
-TORCH = {"adam": torch.optim.Adam, "radam": torch.optim.RAdam}
+TORCH = {
+    kind: partial(cls, foreach=True)  # the implementation moegs.train.optim runs (torch's CUDA default)
+    for kind, cls in (("adam", torch.optim.Adam), ("radam", torch.optim.RAdam))
+}
 OPTIONS = {"lr": 0.01, "betas": (0.9, 0.999), "eps": 1e-8}
 
 
@@ -118,3 +123,22 @@ def test_a_second_rate_needs_a_second_set_and_a_constant_rate():
         ParamGroup("x", [p], 0.1, lr_final=0.001, second_set=lambda: rows, second_lr=0.01)
     group = ParamGroup("x", [p], 0.1, second_set=lambda: rows, second_lr=0.01)
     assert Optimizers([group]).optimizers["x"].param_groups[0]["second_lr"] == 0.01
+
+
+def test_every_optimizer_runs_torchs_foreach_implementation():
+    """The originals ran on CUDA, where torch defaults to foreach; on CPU it would not (RAdam differs)."""
+    start = torch.randn(256, 3, generator=torch.Generator().manual_seed(2))
+    param = torch.nn.Parameter(start.clone())
+    groups = [ParamGroup("means", [param], lr=0.01, optimizer="radam")]
+    opt = Optimizers(groups).optimizers["means"]
+    assert opt.defaults["foreach"] is True
+    single, foreach = (torch.nn.Parameter(start.clone()) for _ in range(2))
+    eps = groups[0].eps
+    opts = [
+        torch.optim.RAdam([p], lr=0.01, eps=eps, foreach=f) for p, f in ((single, False), (foreach, True))
+    ]
+    for grad in _grads(40, rows=256):  # RAdam rectifies from step 6 on
+        for o, p in zip(opts, (single, foreach), strict=True):
+            _step(o, p, grad)
+        _step(opt, param, grad)
+    assert torch.equal(param, foreach) and not torch.equal(foreach, single)

@@ -121,7 +121,8 @@ class ADCStrategy(Strategy):
         n = params["means"].shape[0]
         if state["grad2d"] is None or state["grad2d"].shape[0] != n:
             self._reset_stats(state, n, params["means"].detach())
-        renders = info["renders"]
+        batch = len(info["renders"])
+        renders = info["renders"][-1:] if self.batch_stats == "last" else info["renders"]
         grads = self._ndc_gradients(renders, n)
         visible = [r["visible"] for r in renders]
         radii = [r["radii"].float() for r in renders]
@@ -130,9 +131,7 @@ class ADCStrategy(Strategy):
             visible = [torch.stack(visible).any(dim=0)]
             radii = [torch.stack(radii).amax(dim=0)]
         else:
-            if self.batch_stats == "last":
-                grads, visible, radii = grads[-1:], visible[-1:], radii[-1:]
-            grads = [g * len(renders) for g in grads]  # the batch-mean loss divided each view's gradient
+            grads = [g * batch for g in grads]  # the batch-mean loss divided each view's gradient
         for g, seen, r in zip(grads, visible, radii, strict=True):
             state["grad2d"] += torch.where(seen, g.norm(dim=-1), 0.0)
             state["count"] += seen
