@@ -16,10 +16,9 @@ from torch import nn
 
 from moegs.train.params import ParamGroup
 from moegs.train.schedules import group_lr
-from moegs.train.set_optim import SetOptimizer
+from moegs.train.set_optim import FOREACH, SetOptimizer
 
 ADAM_BETAS = (0.9, 0.999)  # torch defaults, used unchanged by 3DGS and every expert built on it
-FOREACH = True
 _OPTIMIZERS = {"adam": torch.optim.Adam, "radam": torch.optim.RAdam}
 
 

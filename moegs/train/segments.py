@@ -109,12 +109,17 @@ def load_segments(
     out_dir: str | Path, scene: Scene, expect: str | None = None
 ) -> tuple[STGSegments, dict[str, Any]]:
     """Rebuild the trained ``STGSegments`` of a segmented run folder for ``scene``: each segment's model on
-    its window of the scene (``expect``: refuse unless it names STG). Returns the wrapper (eval mode) and
-    ``{"segments": [checkpoint state]}``."""
+    its window of the scene. Refuses unless ``expect`` (if given) and ``segments.json``'s ``expert`` name
+    STG. Returns the wrapper (eval mode) and ``{"segments": [checkpoint state]}``."""
     out = Path(out_dir)
+    record = read_json(out / SEGMENTS_NAME, "segmented run record")
+    if record.get("expert") != STGExpert.name:
+        raise ValueError(
+            f"{out / SEGMENTS_NAME}: expected 'expert': {STGExpert.name!r} (the only expert trained in "
+            f"segments), got {record.get('expert')!r}"
+        )
     if expect is not None and expect != STGExpert.name:
         raise ValueError(f"{out} holds a segmented {STGExpert.name!r} run, but its run says {expect!r}")
-    record = read_json(out / SEGMENTS_NAME, "segmented run record")
     bounds = [tuple(map(float, b)) for b in record.get("bounds", [])]
     if not bounds or any(len(b) != 2 for b in bounds):
         raise ValueError(f"{out / SEGMENTS_NAME}: expected 'bounds' as a list of [start, stop] pairs")

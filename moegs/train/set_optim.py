@@ -25,6 +25,8 @@ from torch.optim.adam import adam as adam_update
 from torch.optim.radam import radam as radam_update
 
 KINDS = ("adam", "radam")
+FOREACH = True
+"""Every optimiser of the suite (this one and ``moegs.train.optim``'s) runs torch's foreach implementation."""
 
 
 class SetOptimizer(torch.optim.Optimizer):
@@ -105,6 +107,6 @@ class SetOptimizer(torch.optim.Optimizer):
         }
         tensors = ([param], [grad], [exp_avg], [exp_avg_sq])
         if self.kind == "adam":
-            adam_update(*tensors, [], [step], foreach=True, amsgrad=False, maximize=False, **options)
+            adam_update(*tensors, [], [step], foreach=FOREACH, amsgrad=False, maximize=False, **options)
         else:
-            radam_update(*tensors, [step], foreach=True, **options)
+            radam_update(*tensors, [step], foreach=FOREACH, **options)

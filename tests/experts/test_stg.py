@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import replace
 
@@ -224,6 +225,11 @@ def test_a_segmented_recipe_trains_resumes_and_loads_as_one_run(tmp_path):
         assert torch.equal(loaded.render(cam, scene.background)[0], segments.render(cam, scene.background)[0])
     with pytest.raises(ValueError, match="segmented 'stg' run, but its run says 'grid4d'"):
         load_trained(tmp_path, scene, expect="grid4d")
+    record = json.loads((tmp_path / SEGMENTS_NAME).read_text())
+    (tmp_path / SEGMENTS_NAME).write_text(json.dumps({**record, "expert": "grid4d"}))
+    with pytest.raises(ValueError, match=r"segments.json: expected 'expert': 'stg' .* got 'grid4d'"):
+        load_trained(tmp_path, scene)
+    (tmp_path / SEGMENTS_NAME).write_text(json.dumps(record))
     _, again = train_recipe(recipe, scene, tmp_path, progress=False)  # finished segments are not retrained
     assert again["resumed_from"] == [3, 3] and again["test"]["psnr"] == result["test"]["psnr"]
 
