@@ -195,7 +195,7 @@ class Ex4DGSConfig(ExpertConfig):
     extract_every: int = 3980
     """Extra static-to-dynamic conversions with the step's view while a time bin has errors
     (``extracton_interval``, N3V 3980), only while densifying and not at a densification step (the
-    ``elif`` inside ``if iteration < densify_until_iter``, ``train.py:203, 224-228``)."""
+    ``elif`` inside ``if iteration < densify_until_iter``, ``train.py:203, 217, 228-232``)."""
     extract_percentile: float = 0.98
     """Quantile of the drift score above which visible static Gaussians become dynamic (Train 0.99)."""
     static_reg: float = 1e-4
@@ -226,7 +226,7 @@ class Ex4DGSConfig(ExpertConfig):
     motion_opacities_lr: float = 0.01
     scales_lr: float = 5e-3
     quats_lr: float = 1e-5
-    """Static rotation (1e-5 in the N3V config)."""
+    """Static rotation (1e-5, the code default ``arguments/__init__.py:104``; no config sets it)."""
     motion_quats_lr: float = 1e-3
     drift_lr: float = 1e-4
     centers_lr: float = 0.01
@@ -360,7 +360,7 @@ class Ex4DGSConfig(ExpertConfig):
             "grow_every": 30,  # 500/400 -> 30/30 so 150 D-NeRF frames are reached at ~450
             "make_dynamic_interval": 8,  # 100 of every 400 -> 8 of every 30
             # 3980 / (400 / 30) ~ 299: off the densification grid, as 3980 is off N3V's 300 (a conversion
-            # step must not densify, train.py:224); 300 would fall on every 50 and never convert
+            # step must not densify, train.py:217, 228); 300 would fall on every 50 and never convert
             "extract_every": 299,
             "reg_from": 30,
             "means_lr_max_steps": QUICK_ITERATIONS,
@@ -772,7 +772,7 @@ class Ex4DGSExpert(Expert):
     def select_views(
         self, step: int, views: list[View], batch_size: int, generator: torch.Generator
     ) -> list[int]:
-        """Progressive schedule (``train.py:115-129``).
+        """Progressive schedule (``train.py:116-130``).
 
         Views are popped from a shuffled stack of the views of the frames trained so far (frame index up
         to the sampling length ``duration``, inclusive: ``scene/__init__.py:271``); an empty stack is
@@ -804,7 +804,7 @@ class Ex4DGSExpert(Expert):
     # ``cat_tensors_to_optimizer``, ``prune_points``): the rewritten rows' moments restart at zero, and a
     # tensor rewritten between the backward pass and the update misses that update. ``_restart`` does both.
     def after_backward(self, step: int, optimizers: dict) -> bool:
-        """After ``step``'s backward pass, before its update (``train.py:224-234``): the interval conversion
+        """After ``step``'s backward pass, before its update (``train.py:228-234``): the interval conversion
         with the step's view, which rewrites every tensor (the step updates nothing), then
         ``adjust_temp_opa``, which rewrites the temporal centres and widths. Returns whether it converted."""
         c = self.config
@@ -861,8 +861,8 @@ class Ex4DGSExpert(Expert):
         return int(self.view_stack[int(self.pass_left)])
 
     def _extracts(self, step: int) -> bool:
-        """Whether ``step`` runs the ``extracton_interval`` conversion (``train.py:224-228``: the ``elif`` of
-        a densification step, inside ``iteration < densify_until_iter``)."""
+        """Whether ``step`` runs the ``extracton_interval`` conversion (``train.py:217, 228-232``: the
+        ``elif`` of a densification step, inside ``iteration < densify_until_iter``)."""
         c, strategy = self.config, self.config.strategy
         return bool(
             c.extract_every

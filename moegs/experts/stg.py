@@ -117,9 +117,9 @@ class STGConfig(ExpertConfig):
     sh_degree: int = 3
     """SH degree of the ``"sh"`` variant (+1 every 1000 iterations)."""
     segment_frames: int | None = 50
-    """Frames per segment model (STG's ``duration``: 50, ``configs/n3d_full/*.json:7``,
-    ``configs/techni_full/*.json:10``; MoE-GS N3V: 150); None = one model for the whole scene.
-    ``moegs.train.entry.train_recipe`` trains a scene of more frames in segments."""
+    """Frames per segment model (STG's ``duration``: 50, ``configs/n3d_full/*.json:7``, ``:8`` in
+    coffee_martini and flame_salmon_1, ``configs/techni_full/*.json:10``; MoE-GS N3V: 150); None = one
+    model for the whole scene. ``moegs.train.entry.train_recipe`` trains a longer scene in segments."""
     max_init_points: int | None = None
     """Keep at most this many initial points (random subset); None keeps all (STG: every frame's SfM)."""
     trbf_scale_init: float = 0.0

@@ -1,6 +1,6 @@
 """STG with temporal segments: one ``STGExpert`` per window of ``STGConfig.segment_frames`` frames (STG: 50,
-``configs/n3d_full/*.json:7``; MoE-GS's STG†: 150), trained with the shared loop and answered at global time
-by ``STGSegments``.
+``configs/n3d_full/*.json:7``, ``:8`` in coffee_martini and flame_salmon_1; MoE-GS's STG†: 150), trained with
+the shared loop and answered at global time by ``STGSegments``.
 
 A segmented run folder holds ``segment_<k>/`` (each an ordinary run folder: checkpoint, config, metrics),
 ``segments.json`` (the normalised-time bounds), and the whole scene's ``config.json`` and ``metrics.json``

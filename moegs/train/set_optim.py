@@ -2,7 +2,7 @@
 
 Ex4DGS keeps its static and dynamic Gaussians in separate tensors, each with its own optimiser state. The
 dynamic tensors only enter the optimiser at the first static-to-dynamic conversion
-(``c_gaussian_model.py:78-86, 439-449, 765-787``), so their step count, which sets the bias corrections
+(``c_gaussian_model.py:78-87, 439-449, 765-787``), so their step count, which sets the bias corrections
 (and RAdam's rectification), starts there. This suite keeps both sets in one tensor per attribute with a
 ``dynamic`` flag; ``SetOptimizer`` updates each set's rows with torch's own functional Adam or RAdam
 (its ``foreach`` implementation, the CUDA default, as ``moegs.train.optim``) and that set's step count, so

@@ -254,7 +254,7 @@ def test_grown_keyframe_count_is_expand_durations_require_dim():
 
 
 def test_interval_extraction_converts_with_the_step_view_only_while_densifying_between_densifications():
-    """``train.py:203, 224-228``: every ``extracton_interval`` iterations, while densifying but not at a
+    """``train.py:203, 217, 228-232``: every ``extracton_interval`` iterations, while densifying but not at a
     densification step (the ``elif``), a time bin with errors converts with the popped view after the
     backward pass and is dropped (``get_errorneous_timestamp``)."""
     expert, scene = _expert(num_frames=3, grow_from=0, grow_every=10**6, interval=1)  # a bin a frame
@@ -306,7 +306,7 @@ def _moment(optimizers, expert, key) -> Tensor:
 
 
 def test_the_interval_conversion_rewrites_every_tensor_like_the_originals_optimiser():
-    """``cat_tensors_to_optimizer`` and ``prune_points`` after the backward pass (``train.py:224-228``):
+    """``cat_tensors_to_optimizer`` and ``prune_points`` after the backward pass (``train.py:228-232``):
     the converted Gaussians' moments restart at zero, the others' are kept, and no tensor keeps the
     gradient, so the step's update changes nothing."""
     expert, scene = _expert(num_frames=3, grow_from=0, grow_every=10**6, interval=1)
@@ -622,7 +622,7 @@ def test_the_motion_regulariser_reads_the_keyframes_in_use():
 
 def test_the_dynamic_set_counts_its_own_optimiser_steps_from_the_first_conversion():
     """The dynamic tensors enter the original's optimiser at the first conversion
-    (``c_gaussian_model.py:78-86, 439-449``): their step count, and so the bias corrections, start there."""
+    (``c_gaussian_model.py:78-87, 439-449``): their step count, and so the bias corrections, start there."""
     expert, scene = _expert(num_frames=3)
     s = expert.splats
     optimizers = Optimizers(expert.param_groups())

@@ -194,7 +194,8 @@ def test_segments_answer_global_time_with_local_models():
 
 
 def test_stg_recipes_train_fifty_frame_segments_as_the_original():
-    """``duration`` 50 in every STG config (configs/n3d_full/*.json:7, techni_full/*.json:10); STG† 150."""
+    """``duration`` 50 in every STG config (configs/n3d_full/*.json:7 or :8, techni_full/*.json:10); STG†
+    150."""
     assert config_for("stg", "n3v:cook_spinach", "paper").config.segment_frames == 50
     assert config_for("stg", "technicolor:birthday", "paper").config.segment_frames == 50
     assert STGConfig.moe_sh().segment_frames == 150
