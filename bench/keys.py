@@ -4,9 +4,9 @@
 reports name. A task's key hashes only the part of it the task can run (``bench.codedeps``), so results
 and checkpoints are reused exactly while that code is unchanged, across commits that touch only other
 files. A Python file counts by its syntax tree without docstrings (``source_fingerprint``): comments,
-docstrings and layout never invalidate a result (the tree's printed form may change between Python
-versions, and every key with it). ``MOEGS_BENCH_CODE_VERSION`` pins both (reuse old checkpoints at your
-own risk).
+docstrings (of attributes too) and layout never invalidate a result (the tree's printed form may change
+between Python versions, and every key with it). ``MOEGS_BENCH_CODE_VERSION`` pins both (reuse old
+checkpoints at your own risk).
 """
 
 from __future__ import annotations
@@ -54,22 +54,21 @@ def file_sha256(path: Path) -> str:
 
 
 def source_fingerprint(path: Path) -> bytes:
-    """What of a source file can change behaviour: a ``.py`` file's syntax tree without its docstrings
-    (comments and layout are not in the tree); any other file's bytes."""
+    """What of a source file can change behaviour: a ``.py`` file's syntax tree without its bare string
+    statements (docstrings of modules, classes, functions and attributes; comments and layout are not in
+    the tree); any other file's bytes."""
     if path.suffix != ".py":
         return path.read_bytes()
-    tree = ast.parse(path.read_bytes(), filename=str(path))
-    for node in ast.walk(tree):
-        body = getattr(node, "body", None)
-        if (
-            isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef)
-            and body
-            and isinstance(body[0], ast.Expr)
-            and isinstance(body[0].value, ast.Constant)
-            and isinstance(body[0].value.value, str)
-        ):
-            node.body = body[1:]
+    tree = _DropBareStrings().visit(ast.parse(path.read_bytes(), filename=str(path)))
     return ast.dump(tree).encode()
+
+
+class _DropBareStrings(ast.NodeTransformer):
+    """Removes every statement that is only a string literal: it documents and does nothing."""
+
+    def visit_Expr(self, node: ast.Expr) -> ast.Expr | None:
+        is_text = isinstance(node.value, ast.Constant) and isinstance(node.value.value, str)
+        return None if is_text else node
 
 
 @cache

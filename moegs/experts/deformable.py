@@ -137,8 +137,8 @@ class DeformableConfig(StaticConfig):
         ),
         "n3v": DatasetPreset(
             "paper-n3v",
-            "adaptation: the original reads 24 frames per N3V camera and has no N3V command "
-            "(scene/dataset_readers.py:513-597); real-data path on the full sequence",
+            "adaptation: the original reads 24 frames per N3V camera (scene/__init__.py:58) "
+            "and has no N3V command; real-data path on the full sequence",
             adapted=True,
         ),
     }

@@ -58,12 +58,14 @@ _HEAD_DIMS = {"means": 3, "scales": 3, "quats": 4, "opacities": 1}
 
 
 # -- formulas ----------------------------------------------------------------------------------------
-def consecutive_pairs(count: int, batch_size: int, generator: torch.Generator) -> list[int]:
+def consecutive_pairs(count: int, frames: int, batch_size: int, generator: torch.Generator) -> list[int]:
     """E-D3DGS's monocular batch (``train.py:110-113``): ``max(B // 2, 1)`` draws ``f`` from
-    ``0..⌈count / 2⌉ - 1`` with repetition, then images ``2f`` of every draw and ``2f + 1`` of every draw,
-    modulo ``count``: ``2 max(B // 2, 1)`` indices."""
+    ``0..⌈count / 2⌉ - 1`` with repetition (``count`` training images), then images ``2f`` of every
+    draw and ``2f + 1`` of every draw, modulo ``frames`` (``scene.maxtime``, the scene's frame count,
+    e.g. 207 in ``arguments/hypernerf/vrig-3dprinter.py:10``): ``2 max(B // 2, 1)`` indices. With one
+    training image per frame (HyperNeRF vrig) the two counts agree."""
     draws = torch.randint(math.ceil(count / 2), (max(batch_size // 2, 1),), generator=generator).tolist()
-    return [2 * f % count for f in draws] + [(2 * f + 1) % count for f in draws]
+    return [2 * f % frames for f in draws] + [(2 * f + 1) % frames for f in draws]
 
 
 def sample_rows(table: Tensor, u: Tensor) -> Tensor:
@@ -296,7 +298,7 @@ class ED3DGSConfig(ExpertConfig):
     """Uniform frames until here; afterwards odd iterations sample frames by error (multi-view only)."""
     consecutive_pairs: bool = False
     """Monocular batches of consecutive training images: ``max(B // 2, 1)`` random ``f`` (with repetition),
-    images ``2f`` then ``2f + 1`` modulo their count (``loader == 'nerfies'``, ``train.py:110-113``; the
+    images ``2f`` then ``2f + 1`` modulo the frame count (``loader == 'nerfies'``, ``train.py:110-113``; the
     HyperNeRF recipe); off, monocular batches come from the default sampler."""
     multiview_ssim_iters: int = 5
     """After ``random_until``, the first this many iterations of every 50 reuse one frame and add D-SSIM."""
@@ -465,7 +467,8 @@ class ED3DGSConfig(ExpertConfig):
             "strategy.densify_from": at(paper.strategy.densify_from),
             "strategy.densify_until": int(QUICK_ITERATIONS * 0.75),  # the last densified Gaussians train
             "strategy.densify_every": 100,  # the original interval (see static.QUICK_DENSIFY)
-            "train.batch_size": 1,  # N3V / HyperNeRF batch 2 (4) -> 1 (CPU cost; one view per step)
+            # N3V batch 1 (arguments/dynerf/default.py:20), HyperNeRF 2 (hypernerf/default.py:22) -> 1
+            "train.batch_size": 1,  # (CPU cost; one view per step)
             # a pair would be 2 views a step (max(1 // 2, 1) draws): one view, from the default sampler
             **({"consecutive_pairs": False} if paper.consecutive_pairs else {}),
         }
@@ -595,7 +598,8 @@ class ED3DGSExpert(Expert):
         (``consecutive_pairs``), else None (the default sampler)."""
         if self.views is None:
             if self.config.consecutive_pairs:
-                return consecutive_pairs(len(views), batch_size, generator)
+                frames = len({view.camera.frame for view in views})
+                return consecutive_pairs(len(views), frames, batch_size, generator)
             return None
         return self.views.sample(step, batch_size, self.config, generator)
 

@@ -43,8 +43,9 @@ class MCMCConfig(StaticConfig):
     num_models: int | None = None
     """None: one model per distinct training time (the paper). Else bin the times into this many models."""
     strategy: Strategy = field(default_factory=lambda: MCMCStrategy(group_key=MODEL_KEY))
-    """Relocation / growth / noise. ``cap_max`` is per model; the paper does not state it (the
-    3DGS-MCMC README: "final #G of vanilla 3DGS"); the default is gsplat's 1M."""
+    """Relocation / growth / noise. ``cap_max`` is per model; the paper does not state it (3DGS-MCMC
+    caps each scene at the count the original 3DGS run reached, ``README.md:107``); the default is
+    gsplat's 1M."""
 
     @classmethod
     def quick_fields(cls, paper: MCMCConfig) -> dict[str, Any]:

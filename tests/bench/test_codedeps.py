@@ -97,8 +97,15 @@ def test_comments_docstrings_and_layout_do_not_move_a_version_and_code_does(tree
     path.write_text('"""Other doc."""\n# a comment\ndef f( a ):  # why\n    return (a\n            + 1)\n')
     codedeps.source_version.cache_clear()
     assert codedeps.source_version(modules, tree) == before
-    # a string that is not a docstring is code
-    path.write_text('"""Module doc."""\n\n\ndef f(a):\n    "Doc."\n    "kept"\n    return a + 1\n')
+    # an attribute docstring documents too; a string the code uses is code
+    path.write_text('"""Module doc."""\nX = 1\n"""X doc."""\n\n\ndef f(a):\n    return a + 1\n')
+    codedeps.source_version.cache_clear()
+    with_x = codedeps.source_version(modules, tree)
+    assert with_x != before
+    path.write_text('"""Module doc."""\nX = 1\n"""Other."""\n\n\ndef f(a):\n    "Doc."\n    return a + 1\n')
+    codedeps.source_version.cache_clear()
+    assert codedeps.source_version(modules, tree) == with_x
+    path.write_text('"""Module doc."""\n\n\ndef f(a):\n    return a + 1 if a != "kept" else a\n')
     codedeps.source_version.cache_clear()
     assert codedeps.source_version(modules, tree) != before
     path.write_text('"""Module doc."""\n\n\ndef f(a):\n    return a + 2\n')

@@ -163,13 +163,16 @@ def test_sampler_keeps_consecutive_cameras_apart_and_reuses_ssim_frames():
 
 def test_monocular_batches_are_consecutive_pairs_of_training_images():
     """``train.py:110-113``: ``max(B // 2, 1)`` draws of ``f < ⌈n / 2⌉``, images ``2f`` then ``2f + 1``
-    (mod n): with 5 images the pairs are (0, 1), (2, 3) and (4, 0)."""
+    modulo the frame count (``scene.maxtime``): 5 images of 5 frames pair as (0, 1), (2, 3) and (4, 0)."""
     g = torch.Generator().manual_seed(0)
-    pairs = {tuple(consecutive_pairs(5, 2, g)) for _ in range(200)}
+    pairs = {tuple(consecutive_pairs(5, 5, 2, g)) for _ in range(200)}
     assert pairs == {(0, 1), (2, 3), (4, 0)}
-    batch = consecutive_pairs(6, 4, g)
+    batch = consecutive_pairs(6, 6, 4, g)
     assert len(batch) == 4 and [i + 1 for i in batch[:2]] == batch[2:]
-    assert len(consecutive_pairs(6, 1, g)) == 2  # a batch of 1 still draws a pair, as the original
+    assert len(consecutive_pairs(6, 6, 1, g)) == 2  # a batch of 1 still draws a pair, as the original
+    # 6 images of 3 frames: draws f < 3 as from the image count, indices wrap at the frame count
+    pairs = {tuple(consecutive_pairs(6, 3, 2, g)) for _ in range(200)}
+    assert pairs == {(0, 1), (2, 0), (1, 2)}
 
 
 def test_select_views_pairs_only_monocular_scenes_of_the_pairing_recipe():
@@ -179,8 +182,10 @@ def test_select_views_pairs_only_monocular_scenes_of_the_pairing_recipe():
     expert.views = None  # a monocular scene's expert has no multi-view table
     assert expert.select_views(1, scene.train, 2, g) is None  # the default sampler
     expert.config.consecutive_pairs = True
-    a, b = expert.select_views(1, scene.train, 2, g)
-    assert b == (a + 1) % len(scene.train) and a % 2 == 0
+    frames = len({view.camera.frame for view in scene.train})
+    assert frames < len(scene.train)  # several cameras a frame: the pairs wrap at the frame count
+    draws = [expert.select_views(1, scene.train, 2, g) for _ in range(50)]
+    assert all(b == (a + 1) % frames and a < frames for a, b in draws)
 
 
 def test_quick_keeps_one_view_a_step_on_hypernerf():

@@ -130,6 +130,15 @@ def test_noise_moves_only_transparent_gaussians():
     assert 0.01 < moved[1] < 3.0
 
 
+def test_noise_stops_at_noise_until_as_gsplat():
+    """gsplat ``MCMCStrategy``: noise while ``step < noise_injection_stop_iter`` (-1: never stops)."""
+    for until, step, moves in [(-1, 10**6, True), (5, 4, True), (5, 5, False), (5, 6, False)]:
+        params, opts = _params([0.001], [0], means=torch.zeros(1, 3))
+        opts["means"].param_groups[0]["lr"] = 1.6e-4
+        MCMCStrategy(noise_until=until).step_post_optimizer(params, opts, {}, step, {})
+        assert (params["means"].detach().norm() > 0).item() == moves, (until, step)
+
+
 def test_regularization_is_mean_opacity_and_scale():
     strategy = MCMCStrategy(opacity_reg=0.01, scale_reg=0.02)
     value = strategy.regularization(torch.tensor([0.2, 0.4]), torch.full((2, 3), 0.5))

@@ -67,7 +67,8 @@ class MCMCStrategy(Strategy):
     """Relocation, growth and SGLD noise (defaults: 3dgs-mcmc ``train.py`` / gsplat ``MCMCStrategy``)."""
 
     cap_max: int = 1_000_000
-    """Maximum Gaussians per model; per scene in 3DGS-MCMC ("final #G of vanilla 3DGS"); gsplat default."""
+    """Maximum Gaussians per model; per scene in 3DGS-MCMC (the count the original 3DGS run reached,
+    3dgs-mcmc ``README.md:107``); gsplat's default."""
     noise_lr: float = 5e5
     """SGLD noise multiplier (``noise_lr``)."""
     refine_from: int = 500
@@ -85,7 +86,8 @@ class MCMCStrategy(Strategy):
     noise_gate_t: float = 0.005
     """... and threshold t (3dgs-mcmc ``op_sigmoid(1 - o, k=100, x0=0.995)``)."""
     noise_until: int = -1
-    """Last step with noise injection; -1 = to the end (gsplat ``noise_injection_stop_iter``)."""
+    """Noise while ``step < noise_until``; -1 = to the end (gsplat ``noise_injection_stop_iter``,
+    ``strategy/mcmc.py``: ``if step < noise_stop``)."""
     opacity_reg: float = 0.01
     """Weight of mean opacity in the loss (``opacity_reg``; 0.001 on Deep Blending)."""
     scale_reg: float = 0.01
@@ -160,7 +162,7 @@ class MCMCStrategy(Strategy):
 
     @torch.no_grad()
     def step_post_optimizer(self, params, optimizers, state, step: int, info: dict) -> None:
-        if 0 <= self.noise_until < step:
+        if 0 <= self.noise_until <= step:
             return
         opacity = torch.sigmoid(params["opacities"])
         gate = torch.sigmoid(-self.noise_gate_k * (opacity - self.noise_gate_t))
