@@ -6,7 +6,8 @@ Layouts (detected in this order):
 
     <root>/colmap_<k>/images/<name>.png   one undistorted 2048x1088 PNG per camera (``input/`` if
                                           ``images/`` is absent); <name> ends in the camera number:
-                                          ``cam10.png`` (STG) or ``<Scene>_undist_00151_10.png`` (Ex4DGS)
+                                          ``cam10.png`` (both scripts' ``imagecopy`` rename
+                                          ``<Scene>_undist_00151_10.png`` so) or the distributed name
     <root>/colmap_<k>/sparse/0/           COLMAP model (cameras, images, points3D; .bin or .txt)
 
   ``<k>`` is the absolute frame number (Ex4DGS: ``colmap_151`` ...) or the index inside the window
@@ -18,11 +19,12 @@ Layouts (detected in this order):
 ``raw`` -- the dataset as distributed::
 
     <root>/<Scene>_undist_<frame:05d>_<cam:02d>.png
-    <root>/cameras_parameters.txt         header + one row per camera:
-                                          f cu cv ar sk d1 d2 qw qx qy qz tx ty tz
+    <root>/cameras_parameters.txt         header + one row per camera (the undistorted set's file):
+                                          f cu cv ar sk qw qx qy qz tx ty tz
 
-  read with STG's interpretation: fx = fy = f, principal point (cu, cv), (q, t) = COLMAP
-  world-to-camera; the images are already undistorted so d1, d2 are ignored.
+  read as STG and Ex4DGS read it (``pre_technicolor.py``: STG ``script/`` :79-87, Ex4DGS
+  ``scripts/`` :72-80): fx = fy = f, principal point (cu, cv), (q, t) = columns 5-8 and 9-11, COLMAP
+  world-to-camera. The distorted set's file has two more columns (d1 d2 after sk) and is refused.
 
 Conventions chosen (``specs/official_moegs.md`` 8, ``specs/experts_noncanonical.md`` 1.4, 2.4):
 - 50-frame windows, half-open in the file numbering: Birthday and Train (151, 201), Fabien and
@@ -112,15 +114,16 @@ def _raw_cameras(path: Path, size: tuple[int, int]) -> dict[int, Camera]:
     rows = [line.split() for line in path.read_text().splitlines()[1:] if line.strip()]
     cams = {}
     for i, row in enumerate(rows):
-        if len(row) < 14:
+        if len(row) != 12:
+            distorted = " (14: the distorted set's calibration, with d1 d2; use the undistorted set)"
             raise ValueError(
-                f"{path}: row {i + 2} has {len(row)} columns, expected 14 "
-                "(f cu cv ar sk d1 d2 qw qx qy qz tx ty tz)"
+                f"{path}: row {i + 2} has {len(row)} columns, expected 12 "
+                f"(f cu cv ar sk qw qx qy qz tx ty tz){distorted if len(row) == 14 else ''}"
             )
-        v = [float(x) for x in row[:14]]
+        v = [float(x) for x in row]
         w2c = torch.eye(4, dtype=torch.float64)
-        w2c[:3, :3] = quat_to_rotmat(torch.tensor(v[7:11]))
-        w2c[:3, 3] = torch.tensor(v[11:14], dtype=torch.float64)
+        w2c[:3, :3] = quat_to_rotmat(torch.tensor(v[5:9]))
+        w2c[:3, 3] = torch.tensor(v[9:12], dtype=torch.float64)
         cams[i] = Camera(
             K=intrinsics(v[0], v[0], v[1], v[2]),
             world_to_camera=w2c.float(),

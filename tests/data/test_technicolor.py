@@ -65,6 +65,32 @@ def test_raw_layout_and_default_window(tmp_path):
         load_technicolor(root, num_points=0)
 
 
+def test_raw_calibration_is_read_as_stg_reads_the_undistorted_set(tmp_path):
+    """``f cu cv ar sk qw qx qy qz tx ty tz`` (STG ``script/pre_technicolor.py:79-87``: q = row[5:9],
+    t = row[9:12]); the distorted set's 14 columns (d1 d2 after sk) are refused by name."""
+    root = tmp_path / "Birthday"
+    fx.write_technicolor_raw(root, frames=(151, 152), cams=2)
+    rows = [
+        "f cu cv ar sk qw qx qy qz tx ty tz",
+        "30 21 11 1 0 1 0 0 0 0.1 0.2 0.3",
+        "30 19 13 1 0 0 0 0 1 1 2 3",
+    ]
+    (root / "cameras_parameters.txt").write_text("\n".join(rows) + "\n")
+    cams = [
+        v.camera for v in load_technicolor(root, frames=(151, 152), num_points=0, test_cameras=(1,)).train
+    ]
+    assert torch.equal(cams[0].K, torch.tensor([[30.0, 0, 21], [0, 30, 11], [0, 0, 1]]))
+    torch.testing.assert_close(
+        cams[0].world_to_camera[:3], torch.tensor([[1.0, 0, 0, 0.1], [0, 1, 0, 0.2], [0, 0, 1, 0.3]])
+    )
+    rows[1] = "30 21 11 1 0 0.01 -0.02 1 0 0 0 0.1 0.2 0.3"
+    (root / "cameras_parameters.txt").write_text("\n".join(rows) + "\n")
+    with pytest.raises(
+        ValueError, match=r"cameras_parameters.txt: row 2 has 14 columns, expected 12 .*distorted"
+    ):
+        load_technicolor(root, frames=(151, 152), num_points=0)
+
+
 def test_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="colmap_<frame>"):
         load_technicolor(tmp_path)

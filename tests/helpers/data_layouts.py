@@ -241,10 +241,10 @@ def write_technicolor_raw(
 ) -> dict:
     """The distributed layout: ``<Scene>_undist_<frame>_<cam>.png`` + ``cameras_parameters.txt``."""
     w2cs, intr = technicolor_cameras(cams, size)
-    lines = ["f cu cv ar sk d1 d2 qw qx qy qz tx ty tz"]
+    lines = ["f cu cv ar sk qw qx qy qz tx ty tz"]  # the undistorted set's header
     for c in range(cams):
         q = _rotmat_to_quat(w2cs[c][:3, :3].numpy().astype(np.float64))
-        lines.append(" ".join(map(str, [*intr[c], 1.0, 0.0, 0.0, 0.0, *q, *w2cs[c][:3, 3].tolist()])))
+        lines.append(" ".join(map(str, [*intr[c], 1.0, 0.0, *q, *w2cs[c][:3, 3].tolist()])))
         for frame in range(*frames):
             _save(pattern(c, frame, size), root / f"{scene}_undist_{frame:05d}_{c:02d}.png")
     (root / "cameras_parameters.txt").write_text("\n".join(lines) + "\n")
