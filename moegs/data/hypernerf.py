@@ -14,7 +14,9 @@ Layout::
 
 Conventions chosen (``specs/peers_and_style.md`` C.2):
 - Split ``vrig``: train = ``train_ids``, test = ``val_ids`` (the second rig camera). ``interp`` (or
-  ``auto`` when ``val_ids`` is empty): train every 4th id, test the ids offset by 2 (4DGaussians).
+  ``auto`` when ``val_ids`` is empty): train every 4th id, test the ids offset by 2 (DeformableGS
+  ``scene/dataset_readers.py:421-423``, Grid4D :417-418; 4DGaussians ``scene/hyper_loader.py:63-66``
+  and E-D3DGS :79-82 also drop the last test id).
 - Resolution: ``resolution_scale=0.5`` -> ``rgb/2x`` = 960x536 on disk (the paper's "960x540"; the full
   images are 1920x1072). Intrinsics are the camera json's scaled by 1/k; the image size is the PNG's
   (checked to be within k pixels of the scaled json size; the difference goes to ``scene.meta``).

@@ -1,8 +1,10 @@
 """Static 3DGS (Kerbl et al. 2023) trained on every frame: the no-deformation baseline.
 
 One set of Gaussians answers every time ``t``; it is what a deformable expert must beat. Learning
-rates, initialisation and densification are those of graphdeco 3DGS (``arguments/__init__.py``,
-``scene/gaussian_model.py``; ``specs/experts_canonical.md`` section 0).
+rates, initialisation and densification are those of graphdeco 3DGS as the dynamic methods vendor it
+(``arguments/__init__.py``, ``scene/gaussian_model.py``; ``specs/experts_canonical.md`` section 0):
+``opacity_lr`` 0.05 as in DeformableGS :89, 4DGaussians :127, Grid4D :119 and 3dgs-mcmc :81;
+graphdeco's 2024 releases halve it to 0.025.
 """
 
 from __future__ import annotations
