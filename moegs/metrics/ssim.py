@@ -22,8 +22,9 @@ _HALF = WINDOW // 2
 SSIM_VARIANTS: dict[str, str] = {
     "3dgs": "Gaussian 11x11/1.5, zero-padded 'same' conv, mean over the full map including borders, "
     "no clipping (graphdeco 3DGS utils/loss_utils.py; used by MoE-GS and most dynamic-GS codes). Default.",
-    "valid": "Gaussian 11x11/1.5, valid conv (5 px border cropped), variances clipped at 0 "
-    "(dm_pix / tf.image.ssim style; NerfBaselines, torchmetrics, pytorch_msssim).",
+    "valid": "Gaussian 11x11/1.5, valid conv (5 px border cropped), variances clipped at 0: the interior "
+    "skimage keeps. pytorch_msssim takes the same window unclipped; dm_pix floors the variances at eps^2 "
+    "and clamps the covariance to their geometric mean.",
     "reflect": "kornia.metrics.ssim: Gaussian 11x11/1.5, reflect-padded 'same' conv, mean over the full map.",
     "skimage": "skimage structural_similarity(gaussian_weights=True, sigma=1.5, use_sample_covariance=False, "
     "data_range=1): reflect-filtered then 5 px crop; numpy, not differentiable, for cross-checks.",
