@@ -134,7 +134,7 @@ def finished_router(folder: Path, config) -> dict | None:
 
 def main(args: argparse.Namespace) -> int:
     from moegs.experts import get_spec
-    from moegs.moe import RouterConfig, load_moe, router_preset, train_router
+    from moegs.moe import load_moe, router_config_for, train_router
     from moegs.moe.model import ROUTER_CHECKPOINT
 
     names = [n.strip() for n in args.experts.split(",") if n.strip()]
@@ -144,7 +144,7 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"--experts needs at least two different experts to route between, got {names}")
     out = Path(args.out or Path("runs") / f"route_{args.scene.replace(':', '_')}_{args.preset}_s{args.seed}")
     experts, scene = _experts(names, args.scene, args.preset, out, not args.quiet)
-    config = RouterConfig.from_preset(router_preset(args.preset, args.convention))
+    config = router_config_for(args.preset, args.convention, scene=args.scene)
     config = replace(config, variant=args.router, seed=args.seed)
     if args.iterations is not None:
         config = replace(config, iterations=args.iterations)

@@ -10,7 +10,8 @@ background (``_lib.shared_background``).
 
 Library API this kind calls (until it exists, cells report "not implemented yet: <name>"):
 
-* ``moegs.moe.RouterConfig.from_preset(name)``: dataclass with ``variant``, ``iterations``, ``seed``.
+* ``moegs.moe.router_config_for(scale, convention, scene=, dataset=)``: a ``RouterConfig`` dataclass with
+  ``variant``, ``iterations``, ``seed`` (the authors' per-dataset rates under the ``code`` convention).
 * ``moegs.moe.train_router(experts, scene, config, out_dir, progress=False) -> {"train_seconds", ...}``
   (experts frozen; writes the router checkpoint into ``out_dir``).
 * ``moegs.moe.load_moe(out_dir, experts, scene) -> model`` (``nn.Module``) whose
@@ -33,7 +34,7 @@ from bench.cells._lib import expert_task, load_trained_expert, shared_background
 from bench.tasks import Task
 
 ROUTERS = ("vapr", "pixel", "volume")
-ROUTER_API = ("moegs.moe:RouterConfig", "moegs.moe:train_router", "moegs.moe:load_moe")
+ROUTER_API = ("moegs.moe:router_config_for", "moegs.moe:train_router", "moegs.moe:load_moe")
 
 
 def missing(params: dict) -> list[str]:
@@ -87,12 +88,13 @@ def router_config(ctx: Any, task: Task):
     """The ``RouterConfig`` of a router build task: the preset of the bench scale (``router_scale``, else
     the experts' scale) and convention, with the bench preset's iteration override and checkpoint
     interval (an interrupted router build resumes from its last checkpoint)."""
-    from moegs.moe import RouterConfig, router_preset
+    from moegs.moe import router_config_for
 
-    cfg = RouterConfig.from_preset(
-        router_preset(
-            ctx.preset.router_scale or ctx.preset.expert_preset, task.params.get("convention", "code")
-        )
+    cfg = router_config_for(
+        ctx.preset.router_scale or ctx.preset.expert_preset,
+        task.params.get("convention", "code"),
+        scene=task.scene,
+        dataset=task.params.get("dataset"),
     )
     return replace(
         cfg,

@@ -13,7 +13,7 @@ pruning), ``distill`` (MoE-GS into one expert), ``lift`` (gate responsibilities 
 fusion), ``visualize`` (gate maps).
 """
 
-from moegs.moe.config import ROUTERS, RouterConfig, router_preset
+from moegs.moe.config import ROUTERS, RouterConfig, router_config_for, router_preset
 from moegs.moe.distill import DistillConfig, distill
 from moegs.moe.lift import compute_responsibilities, lift
 from moegs.moe.model import MoEGS, load_moe, region_shares, winner_coherence
@@ -28,6 +28,7 @@ __all__ = [
     "MoERender",
     "PixelRouter",
     "RouterConfig",
+    "router_config_for",
     "router_preset",
     "VolumeAwarePixelRouter",
     "VolumeRouter",

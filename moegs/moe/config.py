@@ -9,12 +9,16 @@ were produced by the code, so the tables are reproduced with the code's conventi
 =====================  ==========================================  ==================================
 field                  paper (default)                             authors' code
 =====================  ==========================================  ==================================
-``phi_kernel``         3: "convolutional MLP ... local pixel        1: every Conv2d of ``LiteSandwich``
-                       context"                                     is 1x1
+``phi_kernel``         3: our reading of "convolutional MLP ...     1: every Conv2d of ``LiteSandwich``
+                       local pixel context" (no size given)         is 1x1
 ``init_w_dir``         0.0: "neutral near-zero constants"           0.9 (= ``init_mixprob``, like w)
 ``train_temperature``  1.0: the paper has no temperature            0.01 (logits / 0.01 in training)
 ``eval_temperature``   1.0                                          1.0 (plain softmax at evaluation)
 =====================  ==========================================  ==================================
+
+Both conventions feed r(u) as the code builds it, camera origin and unit direction (6 channels, so Phi
+takes 8); the paper calls r(u) the "pixel viewing direction". The learning rates are the paper's on N3V,
+the code's per dataset elsewhere (``CODE_LEARNING_RATES``).
 """
 
 from __future__ import annotations
@@ -38,7 +42,8 @@ class RouterConfig(Presets):
     """``"vapr"`` (volume-aware pixel router), ``"pixel"`` (image-space MLP, no Gaussian information) or
     ``"volume"`` (per-Gaussian gates on opacity before rasterization, one joint render)."""
     iterations: int = PAPER_ROUTER_ITERATIONS
-    """Training iterations, one view per iteration (paper and code: 5000)."""
+    """Training iterations, one view per iteration (code: 5000 on N3V and Technicolor,
+    ``scripts_MoE-GS/train_E4.sh``, ``train_E3_tech.sh``; the paper gives no count)."""
     seed: int = 0
     """Seeds the view order."""
     lambda_dssim: float = 0.2
@@ -68,7 +73,8 @@ class RouterConfig(Presets):
     """Width of the pixel router's two hidden layers (our choice; the paper gives no architecture and
     the authors' code has no pixel router)."""
 
-    # -- optimisation (code: RAdam; paper: 0.5 for w, w_dir and 0.05 for Phi, w_time) ------------------
+    # -- optimisation (code: RAdam; paper: 0.5 for w, w_dir and 0.05 for Phi, w_time; the code's rates
+    # -- differ on Technicolor, see CODE_LEARNING_RATES) ------------------------------------------------
     optimizer: str = "radam"
     """``"radam"`` (code) or ``"adam"``."""
     lr_w: float = 0.5
@@ -129,6 +135,14 @@ class RouterConfig(Presets):
         }
 
 
+CODE_LEARNING_RATES: dict[str, dict[str, float]] = {
+    "technicolor": {"lr_w": 0.1, "lr_time": 0.01, "lr_phi": 0.01},
+    "technicolor:fabien": {"lr_w": 0.05, "lr_time": 0.005, "lr_phi": 0.005},
+}
+"""The authors' router rates (``featuret_lr``, ``feature_lr``, ``rgb_lr``) where they depart from N3V's
+0.5 / 0.05 / 0.05, the paper's (``configs/techni/*.json``; ``specs/official_moegs.md`` section 1), by
+``<dataset>`` or ``<dataset>:<scene>``; the ``code`` convention applies them (:func:`router_config_for`)."""
+
 CONVENTIONS = ("code", "paper")
 """``code``: the authors' code (what produced the paper's numbers); ``paper``: the paper's wording."""
 
@@ -142,3 +156,19 @@ def router_preset(scale: str, convention: str = "code") -> str:
     if scale == "paper":
         return convention
     raise ValueError(f"unknown router scale {scale!r}; valid: quick, paper")
+
+
+def router_config_for(
+    scale: str, convention: str = "code", *, scene: str | None = None, dataset: str | None = None
+) -> RouterConfig:
+    """The ``RouterConfig`` of a run scale and convention on ``scene`` (``<dataset>:<scene>``, e.g.
+    ``"technicolor:fabien"``): :func:`router_preset`, then, under the ``code`` convention, the authors'
+    per-dataset and per-scene rates (``CODE_LEARNING_RATES``). ``dataset`` defaults to the scene's; a
+    stand-in passes the dataset it stands for."""
+    config = RouterConfig.from_preset(router_preset(scale, convention))
+    name = (scene or "").partition(":")
+    dataset = dataset or name[0]
+    if convention != "code" or not dataset:
+        return config
+    rates = CODE_LEARNING_RATES.get(f"{dataset}:{name[2].lower()}", CODE_LEARNING_RATES.get(dataset, {}))
+    return replace(config, **rates)

@@ -11,7 +11,7 @@ import torch
 from helpers.scenes import tiny_scene
 
 from moegs.experts import get_expert_class
-from moegs.moe import RouterConfig, load_moe, train_router
+from moegs.moe import RouterConfig, load_moe, router_config_for, train_router
 from moegs.moe.model import MoEGS
 from moegs.moe.train import evaluate_moe, router_param_groups
 from moegs.train.evaluate import eval_views
@@ -61,6 +61,22 @@ def test_param_groups_have_the_paper_rates(experts):
     assert groups["phi"].lr == 0.05 and all(g.optimizer == "adam" for g in groups.values())  # quick
     paper = router_param_groups(MoEGS(experts, RouterConfig.from_preset("paper")))
     assert all(g.optimizer == "radam" and g.eps == 1e-8 for g in paper)
+
+
+def test_the_code_convention_takes_the_authors_technicolor_rates():
+    """``configs/techni/*.json``: 0.1 / 0.01 / 0.01, Fabien 0.05 / 0.005 / 0.005; N3V and the paper's
+    wording keep 0.5 / 0.05 / 0.05 (``specs/official_moegs.md`` section 1)."""
+    rates = lambda c: (c.lr_w, c.lr_time, c.lr_phi)  # noqa: E731
+    assert rates(router_config_for("paper", scene="n3v:coffee_martini")) == (0.5, 0.05, 0.05)
+    assert rates(router_config_for("paper", scene="technicolor:birthday")) == (0.1, 0.01, 0.01)
+    assert rates(router_config_for("quick", scene="technicolor:Fabien")) == (0.05, 0.005, 0.005)
+    stand_in = router_config_for("quick", scene="synthetic:n3v_like", dataset="technicolor")
+    assert (
+        rates(stand_in) == (0.1, 0.01, 0.01)
+        and stand_in.iterations == RouterConfig.from_preset("quick").iterations
+    )
+    assert rates(router_config_for("paper", "paper", scene="technicolor:birthday")) == (0.5, 0.05, 0.05)
+    assert router_config_for("paper", scene="technicolor:train").phi_kernel == 1  # the code preset underneath
 
 
 def test_interrupted_training_resumes_exactly(scene, experts, tmp_path):
