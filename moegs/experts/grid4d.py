@@ -341,8 +341,9 @@ class Grid4DExpert(DeformingExpert):
     def deform(
         self, splats: Mapping[str, Tensor], t: float, camera: Camera | None = None, raw_quats: bool = False
     ) -> GaussianFrame:
-        """Grid4D's quaternion ``normalize(q) + dr`` is never renormalised, so ``raw_quats`` changes
-        nothing."""
+        """Grid4D adds ``dr`` to the unit canonical quaternion and never renormalises; ``raw_quats`` adds
+        it to the raw canonical one, as MoDE's Grid4D member does (``r_can + d_rotation``,
+        ``specs/official_moegs.md`` section 6)."""
         if not self.deforming:
             return activate(splats, self.active_sh_degree)
         if self.training and torch.is_grad_enabled():
@@ -353,7 +354,8 @@ class Grid4DExpert(DeformingExpert):
             self.active_sh_degree,
             means=rigid_warp(splats["means"], d["warp"]),
             scales=torch.exp(splats["scales"]) + d["dscale"],
-            quats=nn.functional.normalize(splats["quats"], dim=-1) + d["drot"],
+            quats=(splats["quats"] if raw_quats else nn.functional.normalize(splats["quats"], dim=-1))
+            + d["drot"],
         )
 
     def regularization(self, step: int, frame: GaussianFrame | None = None) -> Tensor:

@@ -73,7 +73,8 @@ class MoDEConfig(ExpertConfig):
     control_init_std: float = 0.01
     """Control weights start at ``control_init_std * randn`` (code)."""
     gate_lr: float = 0.005
-    """Control-weight Adam rate, decayed exponentially (code ``weight_movelr``)."""
+    """Control-weight Adam rate, decayed exponentially over the base's fine stage, whose steps the code
+    counts from 1 again (code ``weight_movelr``)."""
     gate_lr_final: float = 0.0005
     gate_lr_max_steps: int = 20_000
 
@@ -132,8 +133,8 @@ class MoDEConfig(ExpertConfig):
         """CPU minutes: the members' quick recipes, 600 iterations, one view per step."""
         return {
             "member_preset": "quick",
-            "warmup_iterations": 100,  # 3000 of 30000 fine steps -> 100 of 450
-            "gate_lr_max_steps": QUICK_ITERATIONS,  # the decay spans the short run
+            "warmup_iterations": 100,  # code: 3000 of 30000 fine steps (10 %); here 100 of 450 (22 %)
+            "gate_lr_max_steps": QUICK_ITERATIONS,  # as the base decays (4DGaussians means_lr_max_steps)
             "train.batch_size": 1,  # batch 4 -> 1 (CPU cost)
         }
 
@@ -227,14 +228,17 @@ class MoDEExpert(Expert):
 
     def param_groups(self) -> list[ParamGroup]:
         """The base's groups, each other member's groups without the canonical tensors (renamed
-        ``<member>.<group>``), and the gate control weights."""
+        ``<member>.<group>``), and the gate control weights. Every schedule restarts where the base's do
+        (4DGaussians: the fine stage, whose iterations the code counts from 1 again)."""
         groups = list(self.base.param_groups())
+        restart = max(g.start_step for g in groups)
         owned = {id(p) for g in groups for p in g.params}
         for m in self.members[1:]:
             for g in m.param_groups():
                 params = [p for p in g.params if id(p) not in owned]
                 if params:
-                    groups.append(replace(g, name=f"{m.name}.{g.name}", params=params))
+                    start = max(g.start_step, restart)
+                    groups.append(replace(g, name=f"{m.name}.{g.name}", params=params, start_step=start))
                     owned.update(id(p) for p in params)
         c = self.config
         groups.append(
@@ -244,6 +248,7 @@ class MoDEExpert(Expert):
                 c.gate_lr,
                 lr_final=c.gate_lr_final,
                 max_steps=c.gate_lr_max_steps,
+                start_step=restart,
             )
         )
         return groups

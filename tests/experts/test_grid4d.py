@@ -86,6 +86,9 @@ def test_warm_up_then_deltas_in_activated_space(scene):
     assert torch.allclose(frame.means, rigid_warp(s["means"], d["warp"]))
     assert torch.allclose(frame.scales, torch.exp(s["scales"]) + d["dscale"])
     assert torch.allclose(frame.quats, torch.nn.functional.normalize(s["quats"], dim=-1) + d["drot"])
+    # MoDE's Grid4D member adds dr to the raw canonical quaternion (r_can + d_rotation)
+    raw = expert.deform({**s, "quats": 2 * s["quats"]}, 0.3, raw_quats=True)
+    assert torch.allclose(raw.quats, 2 * s["quats"] + d["drot"])
 
 
 def test_zero_heads_give_the_canonical_frame(scene):

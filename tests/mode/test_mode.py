@@ -114,6 +114,20 @@ def test_code_preset_gates_position_and_rotation_separately(scene):
         MoDEConfig(experts=("fourdgs", "stg"))
 
 
+def test_schedules_restart_with_the_base_fine_stage(scene):
+    """The code counts the fine stage's iterations from 1 again (``specs/official_moegs.md`` section 6):
+    with a 4DGaussians base, every group's schedule (the members' and the gate control weights') starts
+    where the base's fine stage does; an E-D3DGS base has no stage (a 4DGaussians member keeps its own)."""
+    groups = {g.name: g.start_step for g in make(scene).param_groups()}
+    assert groups["means"] == groups[GATE_KEY] == 0 and groups["fourdgs.deformation"] > 0
+    cfg = replace(MoDEConfig.from_preset("quick"), experts=("fourdgs", "grid4d"))
+    mode = MoDEExpert.from_scene(scene, cfg)
+    coarse = mode.base.config.coarse_iterations
+    assert mode.on_step(coarse + 1)  # fine stage: fresh optimisers
+    groups = {g.name: g.start_step for g in mode.param_groups()}
+    assert {"grid4d.deform", GATE_KEY} <= set(groups) and set(groups.values()) == {coarse}, groups
+
+
 def test_trains_and_reloads(scene, tmp_path):
     cfg = MoDEConfig.from_preset("quick")
     cfg = replace(
