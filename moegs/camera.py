@@ -23,7 +23,7 @@ class Camera:
         width, height: image size in pixels.
         time: normalised time in [0, 1] used by the experts (dataset-specific convention).
         near, far: clipping distances along the optical axis.
-        camera_id: index of the physical camera (per-camera embeddings, e.g. E-D3DGS).
+        camera_id: index of the physical camera (per-camera terms, e.g. E-D3DGS's time offset).
         frame: integer frame index within the scene (``-1`` if not applicable).
         name: identifier used in logs and outputs (e.g. ``cam00/0012``).
     """

@@ -13,7 +13,8 @@ Facts from ``JiaweiXu8/Grid4D`` (``hashencoder/``, torch-ngp style; ``specs/expe
   32 x 32 x 16 rows).
 * The 2^D corners of the cell ``floor(pos)`` are blended with **smoothstep** weights
   ``w(f) = f^2 (3 - 2 f)`` of the fractional part ``f`` (not linear).
-* Table size ``T_l = min(2^log2_hashmap_size, prod_d res_d)``. If ``prod_d res_d <= T_l`` the level is
+* Table size ``T_l = min(2^log2_hashmap_size, prod_d ceil(base * s^l))`` (the float64 sizes above; the
+  kernel's float32 ``res_d`` can exceed them). If ``prod_d res_d <= T_l`` the level is
   **dense**: ``index = sum_d c_d * stride_d`` with ``stride_0 = 1, stride_{d+1} = stride_d * res_d``;
   otherwise ``index = XOR_d (c_d * p_d mod 2^32)`` with primes ``p = (1, 2654435761, 805459861)``.
   Either way the index is taken ``mod T_l``.

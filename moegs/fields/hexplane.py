@@ -13,7 +13,8 @@ Facts from ``hustvl/4DGaussians`` ``scene/hexplane.py`` (see ``specs/experts_can
   (a mirror image of the usual map; kept so plane contents match the original layout).
 * t in [0, 1] is used raw, so only the upper half of each temporal axis is sampled (4DGaussians #251).
 
-Regularisers (``compute_regulation`` in the original, summed over scales and planes):
+Regularisers (4DGaussians ``compute_regulation``, ``scene/gaussian_model.py``, summed over scales
+and planes):
 
 * plane smoothness ``Ls`` on xy, xz, yz; time smoothness ``Lt`` on xt, yt, zt: the mean squared
   **second** difference along the plane's height axis (dim -2: y / z for spatial planes, t for time planes);

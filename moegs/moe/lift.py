@@ -75,12 +75,12 @@ def _as_sh(frame: GaussianFrame, bases: int) -> GaussianFrame:
 def lift(model: MoEGS, t: float) -> GaussianFrame:
     """The post-hoc fused Gaussians at time ``t``: all experts' frames, opacities scaled by ``R``.
 
-    Needs ``model.responsibilities`` (``compute_responsibilities``; ``train_router`` stores them in the
-    router checkpoint)."""
+    Needs ``model.responsibilities`` (``compute_responsibilities``; a router checkpoint keeps them
+    when they were set before it was written; ``train_router`` does not compute them)."""
     if model.responsibilities is None:
         raise ValueError(
             "lift needs the lifted gate responsibilities: call moegs.moe.compute_responsibilities(model, "
-            "scene.train, scene.background) first (train_router stores them with the router)"
+            "scene.train, scene.background) first"
         )
     frames = []
     for expert, resp in zip(model.experts, model.responsibilities, strict=True):

@@ -12,7 +12,12 @@ What the paper leaves open and we fix (the authors' code has the accumulator but
 ``specs/official_moegs.md`` section 4): the gate is summed over the view's pixels before differentiating
 (one backward per view and expert), each Gaussian is scored on its own expert's gate, the gradient is
 taken with respect to the stored parameters ``(w, w_dir, w_time)``, and ``ratio`` applies per expert so
-that no expert is emptied. The default threshold is the code's ``prune_weight_threshold`` (1e-5).
+that no expert is emptied. We prune once, after router training; the paper says "progressively
+pruned", and the code's unused schedule would prune every 500 iterations from iteration 500
+(``prune_weight_interval``, ``prune_from_iter``). The default threshold is the code's
+``prune_weight_threshold`` (1e-5), which there probably bounds a mean accumulated loss gradient, a
+different quantity from our pixel-summed gate gradient: the number does not carry over, and the
+paper's tables prune by ratio.
 """
 
 from __future__ import annotations

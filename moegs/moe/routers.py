@@ -172,10 +172,12 @@ class PixelRouter(nn.Module):
 
 class VolumeRouter(nn.Module):
     """Gates before rasterization (paper's volume-router ablation; the code's ``get_opacity_with_weight``
-    multiplies opacity by a sigmoid of ``_spacetime_mask``). Per Gaussian ``[w, w_time]``; gate
-    ``sigmoid(w + t * w_time)``, initialised at ``1/K`` so that K overlapping reconstructions start near
-    one surface's opacity. All experts' Gaussians are rendered together in one image (antialiased when
-    any expert is). Gates reported per pixel are each expert's share of the accumulated opacity."""
+    multiplies opacity by a sigmoid of ``_spacetime_mask``, no time term, initialised at 0.9, so at
+    sigmoid(0.9) = 0.71; no script calls it). Per Gaussian ``[w, w_time]``; gate ``sigmoid(w + t * w_time)``,
+    initialised at ``1/K`` so that K overlapping reconstructions start near one surface's opacity (the
+    time term and the initial value are ours). All experts' Gaussians are rendered together in one
+    image (antialiased when any expert is). Gates reported per pixel are each expert's share of the
+    accumulated opacity."""
 
     def __init__(self, experts: Sequence[Expert], config: RouterConfig) -> None:
         super().__init__()

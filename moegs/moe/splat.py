@@ -4,12 +4,19 @@
     splat = splat_experts(inputs, camera, extras=[w_k ...])    # images [K, H, W, 3], extras [K, H, W, E]
 
 With ``single_pass=True`` the experts are rendered by ``rasterize_multi``: projection and sorting once,
-one transmittance per expert (the paper's Single-Pass Multi-Expert Rendering). Experts whose rasterizer
+one transmittance per expert (the paper's Single-Pass Multi-Expert Rendering, which the text says leaves
+each expert's rendering unchanged; its equation for C_k(u) writes one product over all experts' Gaussians,
+which would let one expert occlude another). Experts whose rasterizer
 modes differ (Ex4DGS's antialiased 0.1-px dilation vs the 3DGS 0.3-px blur) cannot share one projection;
 they are rendered in one pass per mode. Each expert keeps its own clipping planes
 (``SplatInputs.near`` / ``far``) inside a shared pass: its Gaussians outside them get zero opacity,
 which composites nothing, exactly as culling them does. ``single_pass=False`` renders each expert on
 its own, as the authors' code does. Both give the same images (tested).
+
+The weight maps ride on each expert's own pass (its blur mode, its clipping planes). The authors' code
+splats them with a separate stock-3DGS rasterizer (``diff_gaussian_rasterization_ch3``: 0.3-px blur,
+3DGS culling) over the expert's deformed Gaussians, a second pass per expert (``specs/official_moegs.md``
+section 1); for Ex4DGS and STG (0.1-px antialiased mode, near/far 4 / 300) the maps differ at edges.
 """
 
 from __future__ import annotations

@@ -10,10 +10,11 @@ It matches the torch reference only to a tolerance. Differences from ``_torch.py
 
 * alpha clamp 0.999 (gsplat) instead of 0.99 (3DGS, ``_torch.ALPHA_MAX``);
 * gsplat stops a pixel when ``T (1 - alpha) <= 1e-4`` (ours: ``< 1e-4``);
-* screen radius: gsplat uses per-axis radii ``ceil(e sqrt(cov_ii))`` with ``e = 3.33`` or, in recent
-  versions, ``e = min(3.33, sqrt(2 ln(255 opacity)))``, instead of 3DGS's ``ceil(3 sqrt(lambda_max))``
-  with the 0.1 eigen-gap floor; it also culls opacity (x compensation) < 1/255, which changes only
-  ``visible`` since such splats never pass the alpha cut;
+* screen radius: gsplat 1.5 (``rasterization`` passes the opacities) uses per-axis radii
+  ``ceil(e sqrt(cov_ii))`` with ``e = min(3.33, sqrt(2 ln(255 opacity)))`` and culls opacity
+  (x compensation) < 1/255, which changes only ``visible`` since such splats never pass the alpha cut;
+  gsplat 1.4 uses one radius ``ceil(3 sqrt(lambda_max))`` with a 0.01 floor under the eigen-gap and
+  no opacity cull; 3DGS: ``ceil(3 sqrt(lambda_max))`` with the 0.1 floor;
 * tiles: gsplat evaluates a Gaussian at every pixel of the 16x16 tiles its radius touches, not only
   inside its ``[mean - r, mean + r]`` box, so faint tails (alpha >= 1/255) can reach a few more pixels;
 * culling: gsplat keeps ``near <= z <= far`` (ours: ``near < z < far``).
@@ -69,9 +70,9 @@ def check(device: torch.device, dtype: torch.dtype) -> None:
 # gsplat 1.5's fused projection backward sums the gradients of one warp's threads that hold the same
 # Gaussian index, whatever their batch: with batches of fewer than 32 Gaussians, Gaussian i of one group
 # takes the gradient of Gaussian i of the next (measured on an H100, gsplat 1.5.3: the means gradient of a
-# 25-Gaussian group was off by up to 1.6 where 9- and 17-Gaussian groups followed it; upstream fixed the
-# same defect in the packed path, gsplat PR 1059). Padding every group of a multi-group call to at least a
-# warp keeps one batch per Gaussian index inside any warp.
+# 25-Gaussian group was off by up to 1.6 where 9- and 17-Gaussian groups followed it; a fix of the same
+# defect in the packed path is proposed in gsplat PR 1059, open when this was written). Padding every
+# group of a multi-group call to at least a warp keeps one batch per Gaussian index inside any warp.
 MIN_GROUP_WIDTH = 32
 
 

@@ -10,7 +10,8 @@ Constants and where they come from:
   added to the diagonal of every 2D covariance; gsplat's ``eps2d`` default.
 * ``DILATION_ANTIALIASED = 0.1``: the 2D filter of Ex4DGS (``diff_gaussian_rasterization_df``,
   ``kernel_size = 0.1``), the Mip-Splatting 2D filter (Yu et al. 2024) with opacity compensation
-  ``sqrt(det(cov) / det(cov + 0.1 I))``; equal to gsplat ``eps2d=0.1, rasterize_mode="antialiased"``.
+  ``sqrt(det(cov) / det(cov + 0.1 I))`` (Ex4DGS ``forward.cu:112-118`` clamps both determinants at
+  1e-6 and adds 1e-6 under the root); equal to gsplat ``eps2d=0.1, rasterize_mode="antialiased"``.
 * ``FOV_MARGIN = 1.3``: the Jacobian is evaluated at most 1.3 half-FoVs off the optical axis (3DGS).
   For an off-centre principal point each side gets its own limit, ``(visible extent) + 0.3 x half
   FoV``, which is the 3DGS rule when ``cx = W / 2`` (and gsplat's rule in general).
@@ -18,7 +19,7 @@ Constants and where they come from:
   ``ceil(3 sqrt(lambda_max))`` with ``lambda_max = mid + sqrt(max(0.1, mid² - det))``. The floor
   slightly inflates the radius of near-isotropic splats (e.g. 3 px instead of 2 px for a point seen
   through the 0.3 blur); it is kept because it decides which pixels a splat may touch.
-* SH: the real SH basis constants of 3DGS (``forward.cu``) up to degree 3; colour is
+* SH: the real SH basis constants of 3DGS (``auxiliary.h``) up to degree 3; colour is
   ``max(SH(dir) + 0.5, 0)`` with ``dir = normalize(mean - camera centre)``, as in 3DGS.
 
 Quaternions are used as given, not normalised (the 3DGS CUDA kernel behaves the same way;
