@@ -130,6 +130,15 @@ def _jsonable(values: Mapping[str, Any]) -> dict[str, Any]:
 
 
 # -------------------------------------------------------------------------------------------- scenes
+def override_key(scene: str, dataset: str | None = None) -> tuple[str, str]:
+    """The dataset whose recipes apply to ``scene`` (default :func:`dataset_of`) and the key of the
+    scene's overrides, ``<dataset>:<scene>`` in the suite's spelling (``n3v:flame_salmon_1`` ->
+    ``n3v:flame_salmon``); a bare name (a scene built by hand) is used as it is."""
+    dataset = dataset or dataset_of(scene)
+    name = canonical_scene(scene).partition(":")[2] if ":" in scene else scene
+    return dataset, f"{dataset}:{name}"
+
+
 def dataset_of(scene: str) -> str:
     """The dataset whose recipes apply to a scene name: its prefix, or a stand-in's layout."""
     prefix, _, name = scene.partition(":")
@@ -167,12 +176,10 @@ def config_for(
     if preset not in PRESETS:
         raise ValueError(f"unknown recipe preset {preset!r}; valid: {', '.join(PRESETS)}")
     cls = get_expert_class(expert).config_class
-    dataset = dataset or dataset_of(scene)
-    # overrides are keyed by the suite's names; a bare name (a scene built by hand) is looked up as it is
-    scene_name = canonical_scene(scene).partition(":")[2] if ":" in scene else scene
+    dataset, key = override_key(scene, dataset)
     base = cls.dataset_preset(dataset)
     config = cls.from_preset(base.preset)
-    scene_overrides = dict(cls.SCENE_OVERRIDES.get(f"{dataset}:{scene_name}", {}))
+    scene_overrides = dict(cls.SCENE_OVERRIDES.get(key, {}))
     config = with_fields(config, scene_overrides)
     real = not scene.startswith("synthetic:")
     frame_overrides = dict(cls.own_frame_fields(config, dataset, real))

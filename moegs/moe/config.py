@@ -27,6 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 from moegs.io.config import Presets
+from moegs.recipes import override_key
 
 ROUTERS = ("vapr", "pixel", "volume")
 """Router variants: volume-aware pixel router (the paper's), pixel router, volume router (ablation)."""
@@ -159,16 +160,14 @@ def router_preset(scale: str, convention: str = "code") -> str:
 
 
 def router_config_for(
-    scale: str, convention: str = "code", *, scene: str | None = None, dataset: str | None = None
+    scale: str, convention: str = "code", *, scene: str, dataset: str | None = None
 ) -> RouterConfig:
     """The ``RouterConfig`` of a run scale and convention on ``scene`` (``<dataset>:<scene>``, e.g.
     ``"technicolor:fabien"``): :func:`router_preset`, then, under the ``code`` convention, the authors'
-    per-dataset and per-scene rates (``CODE_LEARNING_RATES``). ``dataset`` defaults to the scene's; a
-    stand-in passes the dataset it stands for."""
+    per-dataset and per-scene rates (``CODE_LEARNING_RATES``). ``dataset`` defaults to the scene's, as
+    for the experts (``moegs.recipes.override_key``); a stand-in may name the dataset it stands for."""
     config = RouterConfig.from_preset(router_preset(scale, convention))
-    name = (scene or "").partition(":")
-    dataset = dataset or name[0]
-    if convention != "code" or not dataset:
+    if convention != "code":
         return config
-    rates = CODE_LEARNING_RATES.get(f"{dataset}:{name[2].lower()}", CODE_LEARNING_RATES.get(dataset, {}))
-    return replace(config, **rates)
+    dataset, key = override_key(scene, dataset)
+    return replace(config, **CODE_LEARNING_RATES.get(key, CODE_LEARNING_RATES.get(dataset, {})))

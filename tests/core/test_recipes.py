@@ -15,7 +15,7 @@ import pytest
 from helpers.training import builtin_experts
 
 from moegs.experts import get_expert_class
-from moegs.recipes import changed_fields, config_for, dataset_of, get_field, with_fields
+from moegs.recipes import changed_fields, config_for, dataset_of, get_field, override_key, with_fields
 from moegs.train.strategy import NEVER
 
 ROWS = [
@@ -269,6 +269,17 @@ def test_quick_differs_only_in_its_named_fields(expert, scene):
 def test_scene_overrides_follow_every_spelling_of_a_scene(expert, alias, scene):
     expected = config_for(expert, scene).scene_overrides
     assert expected and config_for(expert, alias).scene_overrides == expected
+
+
+def test_override_key_is_the_dataset_and_the_suites_spelling():
+    """One resolution for the experts' scene overrides and the router's per-scene rates."""
+    assert override_key("n3v:flame_salmon_1") == ("n3v", "n3v:flame_salmon")
+    assert override_key("technicolor:Fabien") == ("technicolor", "technicolor:fabien")
+    assert override_key("synthetic:n3v_like") == ("n3v", "n3v:n3v_like")  # a stand-in: its layout
+    assert override_key("synthetic:n3v_like", "technicolor") == ("technicolor", "technicolor:n3v_like")
+    assert override_key("my_scene", "dnerf") == ("dnerf", "dnerf:my_scene")  # built by hand: as typed
+    with pytest.raises(ValueError, match="unknown synthetic scene 'nosuch'"):
+        override_key("synthetic:nosuch")
 
 
 def test_dataset_presets_and_adaptations():

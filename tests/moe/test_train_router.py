@@ -77,6 +77,9 @@ def test_the_code_convention_takes_the_authors_technicolor_rates():
     )
     assert rates(router_config_for("paper", "paper", scene="technicolor:birthday")) == (0.5, 0.05, 0.05)
     assert router_config_for("paper", scene="technicolor:train").phi_kernel == 1  # the code preset underneath
+    # the scene resolves as the experts' recipes do: aliases, case, a stand-in's layout
+    assert rates(router_config_for("paper", scene="technicolor:FABIEN")) == (0.05, 0.005, 0.005)
+    assert rates(router_config_for("quick", scene="synthetic:n3v_like")) == (0.5, 0.05, 0.05)
 
 
 def test_interrupted_training_resumes_exactly(scene, experts, tmp_path):
