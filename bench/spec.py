@@ -137,7 +137,10 @@ class Claim:
     """A qualitative claim of the paper, checked on our values (and on the paper's, as a sanity check).
 
     ``check`` names a function of ``bench.claims``; ``args`` are its keyword arguments.
-    ``source`` says where the paper makes the claim.
+    ``source`` says where the paper makes the claim: the section whose text states it (``Sec. IV-C
+    (ii)``, in the numbering of ``paper/moe-gs-mode.tex``), or the table alone (``Table III``) where
+    only the table's numbers show it. ``twin``: whether a spec about motion also checks the claim on
+    the dynamic region; False where the paper says otherwise about motion, or nothing.
     """
 
     id: str
@@ -145,13 +148,15 @@ class Claim:
     check: str
     args: Mapping[str, Any] = field(default_factory=dict)
     source: str = ""
+    twin: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "args", _frozen(self.args))
 
     def on_dynamic_region(self) -> Claim | None:
-        """The same claim on the dynamic region's PSNR, for claims about PSNR (None otherwise)."""
-        if self.check not in DYNAMIC_TWINS or self.args.get("metric", "PSNR") != "PSNR":
+        """The same claim on the dynamic region's PSNR, for claims about PSNR that have a twin (None
+        otherwise)."""
+        if not self.twin or self.check not in DYNAMIC_TWINS or self.args.get("metric", "PSNR") != "PSNR":
             return None
         args = {**self.args, "metric": "PSNR dynamic"}
         return Claim(f"{self.id}-dynamic", f"{self.text} [dynamic region]", self.check, args, self.source)

@@ -18,7 +18,7 @@ SPEC = Spec(
             "Even the best run of any single expert does not match MoE-GS's average",
             "exceeds",
             {"a": _MOE, "column_a": "Average", "others": _EXPERTS, "column_b": "Max"},
-            "Sec. VI-B (iii)",
+            "Sec. IV-C (iii)",
         ),
         Claim(
             "moe-beats-experts",
@@ -32,7 +32,7 @@ SPEC = Spec(
             "MoE-GS varies less across runs than the single experts",
             "spread",
             {"a": _MOE, "others": _EXPERTS},
-            "Sec. VI-B (iii)",
+            "Sec. IV-C (iii)",
         ),
     ),
     notes="Number of runs not printed; the preset sets it (seeds 0..k-1). Each run's value is the mean "

@@ -7,7 +7,7 @@ SPEC = moe_pair_spec(
     "Monocular HyperNeRF (PSNR)",
     "hypernerf",
     ("4DGaussians", "E-D3DGS"),
-    ("Table XIV", "Appendix"),
+    ("Table XIV", "Table XIV"),
     notes="The paper does not print the two experts of MoE-GS (N=2); {4DGaussians, E-D3DGS} (the listed "
     "baselines) is assumed.",
 )

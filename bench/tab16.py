@@ -7,7 +7,7 @@ SPEC = moe_pair_spec(
     "Large motion: PanopticSports (PSNR)",
     "panoptic",
     ("4DGaussians", "Grid4D"),
-    ("Appendix", "Appendix"),
+    ("Appendix, Large-Motion Benchmarks", "Appendix, Large-Motion Benchmarks"),
     notes="The metric is not printed; PSNR assumed. Basketball is the staged real scene, shipped here "
     "without init_pt_cld.npz (the originals' initialisation): the loader triangulates SIFT matches of the "
     "training cameras at the window's first frame with the given calibration instead "

@@ -7,7 +7,7 @@ SPEC = moe_pair_spec(
     "Large motion: D-NeRF (PSNR)",
     "dnerf",
     ("DeformableGS", "Grid4D"),
-    ("Appendix", "Appendix"),
+    ("Appendix, Large-Motion Benchmarks", "Appendix, Large-Motion Benchmarks"),
     claims=(
         Claim(
             "grid4d-beats-deformable",
