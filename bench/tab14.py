@@ -8,8 +8,9 @@ SPEC = moe_pair_spec(
     "hypernerf",
     ("4DGaussians", "E-D3DGS"),
     ("Table XIV", "Table XIV"),
-    notes="The paper does not print the two experts of MoE-GS (N=2); {4DGaussians, E-D3DGS} (the listed "
-    "baselines) is assumed.",
+    notes="The paper does not print the two experts of MoE-GS (N=2) here; {4DGaussians, E-D3DGS} (the "
+    "listed baselines) is assumed. Its default N=2 set is {Ex4DGS, STG} ('unless otherwise specified', "
+    "Sec. IV-C), which this table's rows do not list.",
 )
 
 if __name__ == "__main__":
