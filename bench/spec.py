@@ -148,7 +148,7 @@ class Claim:
     check: str
     args: Mapping[str, Any] = field(default_factory=dict)
     source: str = ""
-    twin: bool = True
+    twin: bool = field(default=True, kw_only=True)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "args", _frozen(self.args))
