@@ -22,14 +22,14 @@ SPEC = Spec(
             "routing-weighted > unweighted > baseline (PSNR)",
             "order",
             {"rows": _ROWS, "columns": ["PSNR (dB)"]},
-            "Appendix, Table XIX",
+            "Appendix, Distillation Weighting Strategies (weighted > unweighted); Table XIX (the rest)",
         ),
         Claim(
             "weighted-order-ssim",
             "routing-weighted > unweighted > baseline (SSIM)",
             "order",
             {"rows": _ROWS, "metric": "SSIM", "columns": ["SSIM"]},
-            "Appendix, Table XIX",
+            "Appendix, Distillation Weighting Strategies (weighted > unweighted); Table XIX (the rest)",
         ),
         Claim(
             "weighted-best-lpips",
