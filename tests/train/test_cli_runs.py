@@ -33,7 +33,8 @@ def metrics(out: Path) -> dict:
 def same_result(a: Path, b: Path) -> None:
     ma, mb = metrics(a), metrics(b)
     assert ma["completed"] and mb["completed"]
-    assert ma["num_gaussians"] == mb["num_gaussians"] and ma["final_loss"] == mb["final_loss"]
+    resumed = f"{b.name} resumed from step {mb.get('resumed_from')}"  # which checkpoint, if a resume differs
+    assert ma["num_gaussians"] == mb["num_gaussians"] and ma["final_loss"] == mb["final_loss"], resumed
     assert ma["test"]["psnr"] == mb["test"]["psnr"]
 
 
