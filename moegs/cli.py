@@ -21,6 +21,7 @@ import sys
 from pathlib import Path
 
 from moegs.cli_types import add_resume_arguments, positive_int, scene_name, seed, unit_scale, unit_time
+from moegs.threads import start_cpu_workers
 
 
 def _cmd_list(args: argparse.Namespace) -> int:
@@ -309,6 +310,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: commands that compute nothing with torch (and stay instant)
+_COMPUTE_NOTHING = frozenset({"list", "recipe"})
+
 _COMMANDS = {
     "list": _cmd_list,
     "train": _cmd_train,
@@ -328,6 +332,8 @@ def main(argv: list[str] | None = None) -> int:
 
     args = build_parser().parse_args(argv)
     prefix = f"moegs {args.command}:"
+    if args.command not in _COMPUTE_NOTHING:
+        start_cpu_workers()  # processes compute alike (moegs.threads)
     try:
         return _COMMANDS[args.command](args)
     except TrainingInterrupted as err:

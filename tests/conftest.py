@@ -10,8 +10,10 @@ import pytest
 import torch
 
 from moegs.paths import data_root
+from moegs.threads import start_cpu_workers
 
 torch.set_num_threads(2)
+start_cpu_workers()  # the first parallel region is not a test's (moegs.threads)
 
 
 @pytest.fixture(autouse=True)

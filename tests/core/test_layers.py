@@ -38,7 +38,7 @@ def test_the_check_sees_nested_imports(tmp_path):
 
 LAYERS = (
     ("kernels",),
-    ("camera", "gaussians", "fields", "errors", "paths"),
+    ("camera", "gaussians", "fields", "errors", "paths", "threads"),
     ("render", "data", "metrics", "io"),
     (
         "train.config",
