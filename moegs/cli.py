@@ -332,9 +332,9 @@ def main(argv: list[str] | None = None) -> int:
 
     args = build_parser().parse_args(argv)
     prefix = f"moegs {args.command}:"
-    if args.command not in _COMPUTE_NOTHING:
-        start_cpu_workers()  # processes compute alike (moegs.threads)
     try:
+        if args.command not in _COMPUTE_NOTHING:
+            start_cpu_workers()  # processes compute alike (moegs.threads)
         return _COMMANDS[args.command](args)
     except TrainingInterrupted as err:
         print(f"{prefix} interrupted: {err}", file=sys.stderr)
