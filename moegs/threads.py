@@ -14,6 +14,11 @@ twenty started from other scales: a run resumed after ``kill -9`` ended with 422
 4228. The commands that compute call :func:`start_cpu_workers` first; a script of yours can do the same.
 A later ``torch.set_num_threads`` above the count at that call may start new threads (not measured):
 call it again after that.
+
+This lowers the rate; it does not remove the effect, whose cause inside torch is unknown. After the call
+0 of 160 plain processes and 0 of 120 ``moegs train`` processes were hit (about 8 and 6 expected without
+it), yet one ``moegs train`` subprocess of a later CI run still started from the other scales (step-1 loss
+0.3613119 instead of 0.3613114).
 """
 
 from __future__ import annotations
