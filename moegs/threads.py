@@ -15,6 +15,10 @@ twenty started from other scales: a run resumed after ``kill -9`` ended with 422
 A later ``torch.set_num_threads`` above the count at that call may start new threads (not measured):
 call it again after that.
 
+The effect depends on the machine: the numbers above come from the virtual machine where it was found;
+on an AMD EPYC virtual machine, 0 of 120 fresh processes computed their first ``sqrt`` differently without
+this call (2026-12-02).
+
 This lowers the rate; it does not remove the effect, whose cause inside torch is unknown. After the call
 0 of 160 plain processes and 0 of 120 ``moegs train`` processes were hit (about 8 and 6 expected without
 it), yet one ``moegs train`` subprocess of a later CI run still started from the other scales (step-1 loss
