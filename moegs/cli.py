@@ -27,15 +27,26 @@ from moegs.threads import start_cpu_workers
 def _cmd_list(args: argparse.Namespace) -> int:
     from moegs.data import list_datasets, list_scenes
     from moegs.experts import list_experts
+    from moegs.paths import data_root
 
     print("experts:")
     for spec in list_experts():
         print(f"  {spec.name:<12} {spec.description}")
+    print(f"data root: {_describe_root(data_root())}")
     print("scenes (found under the data root; synthetic:<name> is generated on demand):")
     for dataset in list_datasets():
         found = list_scenes(dataset)
         print(f"  {dataset:<12} {', '.join(found) if found else '-'}")
     return 0
+
+
+def _describe_root(root: Path | None) -> str:
+    """The data root as ``moegs list`` shows it, saying why no real scene can be found there."""
+    if root is None:
+        return "none (set MOEGS_DATA; the default ../shared/data beside the repository does not exist)"
+    if not root.is_dir():
+        return f"{root} (MOEGS_DATA) does not exist or is not a folder"
+    return str(root)
 
 
 def _load_scene(meta: dict):

@@ -22,6 +22,18 @@ def test_list_imports_no_torch_expert_renderer_or_loader():
     assert "static" in done.stdout and "mcmc" in done.stdout and "dnerf" in done.stdout
 
 
+def test_list_says_where_it_looked_for_data(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("MOEGS_DATA", str(tmp_path / "missing"))
+    assert main(["list"]) == 0
+    assert f"data root: {tmp_path / 'missing'} (MOEGS_DATA) does not exist" in capsys.readouterr().out
+    monkeypatch.setenv("MOEGS_DATA", str(tmp_path))
+    assert main(["list"]) == 0
+    assert f"data root: {tmp_path}\n" in capsys.readouterr().out
+    monkeypatch.setattr("moegs.paths.data_root", lambda: None)
+    assert main(["list"]) == 0
+    assert "data root: none (set MOEGS_DATA;" in capsys.readouterr().out
+
+
 def test_unknown_expert_lists_valid_names(capsys):
     assert main(["train", "--expert", "nope", "--scene", SCENE]) == 2
     err = capsys.readouterr().err
