@@ -48,3 +48,11 @@ def test_relative_links_resolve(doc):
         elif fragment and path.suffix == ".md" and fragment not in anchors(path):
             dead.append(f"{target}: no heading with anchor #{fragment} in {path.name}")
     assert not dead, f"{doc}: " + "; ".join(dead)
+
+
+def test_readme_contents_lists_every_section():
+    text = re.sub(r"```.*?```", "", (REPO / "README.md").read_text(), flags=re.S)
+    contents = text.split("## Contents", 1)[1].split("\n## ", 1)[0]
+    listed = set(re.findall(r"\]\(#([^)]+)\)", contents))
+    sections = {anchor(h) for h in re.findall(r"^##+ (.+)$", text, re.M)} - {"contents"}
+    assert listed == sections, f"not in Contents: {sections - listed}; not a section: {listed - sections}"
