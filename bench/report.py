@@ -259,7 +259,7 @@ def noise_markdown(noise: dict[str, Any]) -> list[str]:
     for name, entry in sorted(scenes.items()):
         rows = ", ".join(f"{row} {_num(v.get('PSNR'))}" for row, v in entry["rows"].items())
         metrics, label = entry["metrics"], name + ("" if entry["real"] else " (stand-in)")
-        borrowed = entry.get("preset") not in (None, noise.get("preset"))
+        borrowed = entry.get("preset") not in (None, noise.get("preset")) or "committed" in entry
         run = f"{entry['preset']} run" + (f", {entry['committed']}" if entry.get("committed") else "")
         source = ", ".join(entry["source"]) + (f" ({run})" if borrowed else "")
         if entry.get("pooled_with"):

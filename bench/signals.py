@@ -206,7 +206,9 @@ def run_noise(plan: Plan, workspace: Workspace, committed: Path | None = None) -
       summary, so a warm re-run judges as the run it repeats; other cells (other code) never pool.
     * Completed: a scene with no spread of its own borrows the one the ``NOISE_PROXY`` preset measured
       on it with the same specs in the same workspace, or else the one in ``committed`` (for a run on a
-      machine without the quick cells), where that preset loads the scene as this one does (a stand-in
+      machine without the quick cells, and for a quick run of a few tables, whose scenes' spreads come
+      from tables it did not run: Table IX's for the N3V stand-in), where that preset loads the scene as
+      this one does (a stand-in
       of another size, ``quick32``'s or ``tiny``'s, is another scene under the same name). A borrowed
       entry keeps ``"preset"`` (and, from a summary, ``"committed"``: which file and commit), so the
       report says so. A longer run's noise is not
@@ -218,17 +220,17 @@ def run_noise(plan: Plan, workspace: Workspace, committed: Path | None = None) -
         if (other := recorded.get(name)) is not None and other.get("cells") == entry["cells"]:
             _pool(entry, other)
     noise.update(_stand_in_spread(noise["scenes"]))
-    if plan.preset.name == NOISE_PROXY:
-        return noise
     proxy_preset = get_preset(NOISE_PROXY)
-    proxy = seed_noise(make_plan([sp.spec for sp in plan.specs], proxy_preset), workspace)
     wanted = {
         s.name
         for sp in plan.specs
         for s in sp.scenes
         if load_kwargs(s, plan.preset) == load_kwargs(s, proxy_preset)
     }
-    for name, entry in [*proxy["scenes"].items(), *recorded.items()]:
+    proxy = {}
+    if plan.preset.name != NOISE_PROXY:
+        proxy = seed_noise(make_plan([sp.spec for sp in plan.specs], proxy_preset), workspace)["scenes"]
+    for name, entry in [*proxy.items(), *recorded.items()]:
         if name in wanted:
             noise["scenes"].setdefault(name, entry)
     return noise
