@@ -208,10 +208,9 @@ def run_noise(plan: Plan, workspace: Workspace, committed: Path | None = None) -
       on it with the same specs in the same workspace, or else the one in ``committed`` (for a run on a
       machine without the quick cells, and for a quick run of a few tables, whose scenes' spreads come
       from tables it did not run: Table IX's for the N3V stand-in), where that preset loads the scene as
-      this one does (a stand-in
-      of another size, ``quick32``'s or ``tiny``'s, is another scene under the same name). A borrowed
-      entry keeps ``"preset"`` (and, from a summary, ``"committed"``: which file and commit), so the
-      report says so. A longer run's noise is not
+      this one does (a stand-in of another size, ``quick32``'s or ``tiny``'s, is another scene under the
+      same name). A borrowed entry keeps ``"preset"`` (and, from a summary, ``"committed"``: which file
+      and commit), so the report says so. A longer run's noise is not
       measured by a shorter one's, but a claim decided by less than the quick run's spread is not
       decided."""
     noise = seed_noise(plan, workspace)

@@ -18,14 +18,17 @@ def anchor(heading: str) -> str:
     return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
 
 
+def prose(path: Path) -> str:
+    """The markdown of ``path`` without its fenced code blocks."""
+    return re.sub(r"```.*?```", "", path.read_text(), flags=re.S)
+
+
 def anchors(path: Path) -> set[str]:
-    text = re.sub(r"```.*?```", "", path.read_text(), flags=re.S)
-    return {anchor(m) for m in re.findall(r"^#+ (.+)$", text, re.M)}
+    return {anchor(m) for m in re.findall(r"^#+ (.+)$", prose(path), re.M)}
 
 
 def relative_links(path: Path) -> list[str]:
-    text = re.sub(r"```.*?```", "", path.read_text(), flags=re.S)
-    return [t for t in LINK.findall(text) if not re.match(r"[a-z]+:", t)]
+    return [t for t in LINK.findall(prose(path)) if not re.match(r"[a-z]+:", t)]
 
 
 def test_anchor_follows_github():
@@ -51,7 +54,7 @@ def test_relative_links_resolve(doc):
 
 
 def test_readme_contents_lists_every_section():
-    text = re.sub(r"```.*?```", "", (REPO / "README.md").read_text(), flags=re.S)
+    text = prose(REPO / "README.md")
     contents = text.split("## Contents", 1)[1].split("\n## ", 1)[0]
     listed = set(re.findall(r"\]\(#([^)]+)\)", contents))
     sections = {anchor(h) for h in re.findall(r"^##+ (.+)$", text, re.M)} - {"contents"}
