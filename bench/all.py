@@ -154,6 +154,7 @@ def write_outputs(
     from bench.latex import write_index, write_table
     from bench.plots import plot_spec
     from bench.report import spec_report, write_report
+    from bench.runlog import runs_of
     from bench.sidebyside import compare
     from bench.sidebyside import write_latex as write_comparison
     from bench.signals import compute_rows, expert_rows, noise_for, routing_rows, run_noise
@@ -192,7 +193,9 @@ def write_outputs(
         "presets": comparisons,
         "compute": compute_rows(plan, workspace),
     }
-    paths = write_report(reports, plan.preset, reports_dir, run, signals, plan.identity())
+    identity = plan.identity()
+    history = runs_of(workspace.root, identity["keys_digest"])
+    paths = write_report(reports, plan.preset, reports_dir, run, signals, identity, history)
     return {"reports": reports, "paths": paths, "tables": written}
 
 
@@ -211,6 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     from dataclasses import fields
 
     from bench.plan import make_plan
+    from bench.runlog import record_run
     from bench.store import Workspace
 
     workspace = Workspace(args.workspace)
@@ -274,10 +278,12 @@ def main(argv: list[str] | None = None) -> int:
             ],
         }
     quick_summary = output_dirs(args.out, get_preset("quick"), complete, complete)[1] / "summary.json"
-    outputs = write_outputs(
-        run_plan if subset else plan, workspace, selected, tables_dir, reports_dir, run, quick_summary
-    )
+    reported = run_plan if subset else plan
+    outputs = write_outputs(reported, workspace, selected, tables_dir, reports_dir, run, quick_summary)
     elapsed = time.perf_counter() - start
+    if run is not None:  # after the report: it lists the earlier runs of its plan, this one is its header's
+        jobs = args.jobs if args.executor == "local" else None
+        record_run(workspace.root, preset.name, reported.identity(), run, args.executor, jobs, elapsed)
     _print_summary(outputs["reports"], selected, outputs["paths"], elapsed)
     if run and run["failures"]:
         print(

@@ -21,6 +21,8 @@ from typing import Any
 from bench.claims import FAILED, HELD, NA, NOISE, evaluate
 from bench.keys import code_version, git_commit
 from bench.presets import BenchPreset
+from bench.runlog import FILE as RUNS_FILE
+from bench.runlog import SHOWN, describe
 from bench.signals import NOISE_PROXY
 from bench.values import SpecValues
 
@@ -146,7 +148,12 @@ def spec_report(
 
 
 # ------------------------------------------------------------------------------------ rendering
-def _header(preset: BenchPreset, run: dict[str, Any] | None, cells: dict[str, Any] | None) -> dict[str, Any]:
+def _header(
+    preset: BenchPreset,
+    run: dict[str, Any] | None,
+    cells: dict[str, Any] | None,
+    history: list[dict[str, Any]] | None,
+) -> dict[str, Any]:
     return {
         "created": time.strftime("%Y-%m-%d %H:%M:%S %z"),
         "preset": preset.name,
@@ -157,7 +164,20 @@ def _header(preset: BenchPreset, run: dict[str, Any] | None, cells: dict[str, An
         "git": git_commit(),
         "cells": cells or {},
         "run": run or {},
+        "history": history or [],
     }
+
+
+def history_markdown(history: list[dict[str, Any]]) -> list[str]:
+    """Header bullets: the newest recorded runs of the report's plan (``bench.runlog``), oldest first."""
+    if not history:
+        return []
+    shown = history[-SHOWN:]
+    older = f" ({len(history) - len(shown)} older not shown)" if len(history) > len(shown) else ""
+    return [
+        f"- runs of these cells recorded in the workspace (`{RUNS_FILE}`){older}:",
+        *(f"  - {describe(entry)}" for entry in shown),
+    ]
 
 
 def _claim_counts(rep: SpecReport) -> str:
@@ -414,6 +434,7 @@ def render_markdown(
             if (c := h.get("cells"))
             else []
         ),
+        *history_markdown(h.get("history", [])),
         "- Numbers come only from local result JSONs (ours) and `tables/paper` (the paper). "
         "Δ = ours - paper, shown only where ours ran on the paper's real scene(s); "
         "outputs from synthetic stand-in scenes say so.",
@@ -582,12 +603,14 @@ def write_report(
     run: dict[str, Any] | None = None,
     signals: dict[str, Any] | None = None,
     cells: dict[str, Any] | None = None,
+    history: list[dict[str, Any]] | None = None,
 ) -> dict[str, Path]:
     """Write REPORT.md, REPORT.html and summary.json into ``out_dir``; ``signals`` (``bench.signals``:
     ``noise``, ``experts``, ``routing``, ``compute``) go into the report and into summary.json as top-level
-    keys; ``cells``: the plan's ``identity()``, in the header."""
+    keys; ``cells``: the plan's ``identity()``, in the header; ``history``: the workspace's earlier runs
+    of that plan (``bench.runlog``), in the header."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    header = _header(preset, run, cells)
+    header = _header(preset, run, cells, history)
     signals = signals or {}
     paths = {"md": out_dir / "REPORT.md", "html": out_dir / "REPORT.html", "json": out_dir / "summary.json"}
     paths["md"].write_text(render_markdown(reports, header, out_dir, signals), encoding="utf-8")

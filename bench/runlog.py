@@ -1,0 +1,96 @@
+"""The workspace's record of ``bench.all`` runs: when, on which machine and code, how long, what ran.
+
+A report rendered later from cached cells (``--no-run``) has no run of its own; it lists the runs of its
+plan (same keys digest, so the same cells) that the workspace recorded, so a cold run's wall clock and
+its machine stay with the outputs built from its cells instead of being typed into prose.
+``<workspace>/runs.json``: ``{"runs": [entry, ...]}``, oldest first, rewritten atomically per run.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from bench.keys import git_commit
+from bench.readme import machine_line
+from bench.results import write_json_atomic
+
+FILE = "runs.json"
+SHOWN = 5  # a report lists the newest runs of its plan, and says how many older ones it left out
+
+
+def runs_path(workspace_root: Path) -> Path:
+    return workspace_root / FILE
+
+
+def read_runs(workspace_root: Path) -> list[dict[str, Any]]:
+    """Every recorded run, oldest first (none when the file does not exist)."""
+    path = runs_path(workspace_root)
+    if not path.is_file():
+        return []
+    try:
+        runs = json.loads(path.read_text(encoding="utf-8"))["runs"]
+    except (json.JSONDecodeError, KeyError, TypeError) as err:
+        raise ValueError(f"{path}: not a run record ({{'runs': [...]}}): {err}") from err
+    if not isinstance(runs, list):
+        raise ValueError(f"{path}: 'runs' must be a list, got {type(runs).__name__}")
+    return runs
+
+
+def record_run(
+    workspace_root: Path,
+    preset: str,
+    identity: dict[str, Any],
+    run: dict[str, Any],
+    executor: str,
+    jobs: int | None,
+    seconds: float,
+) -> dict[str, Any]:
+    """Append one finished ``bench.all`` run of the plan ``identity`` (``Plan.identity``); ``run``: the
+    runner's counts (``bench.all``'s ``run`` dict); ``jobs``: the local executor's parallel tasks (None
+    for the others); ``seconds``: the command's wall clock, outputs included. Returns the entry."""
+    entry = {
+        "finished": time.strftime("%Y-%m-%d %H:%M:%S %z"),
+        "preset": preset,
+        "specs": identity["specs"],
+        "keys_digest": identity["keys_digest"],
+        "git": git_commit().get("commit"),
+        "machine": machine_line(),
+        "executor": executor,
+        "jobs": jobs,
+        **{k: run[k] for k in ("builds_run", "builds_reused", "evals_run", "evals_reused")},
+        "failures": len(run["failures"]),
+        "cells_seconds": round(run["seconds"], 1),
+        "seconds": round(seconds, 1),
+    }
+    write_json_atomic(runs_path(workspace_root), {"runs": [*read_runs(workspace_root), entry]})
+    return entry
+
+
+def runs_of(workspace_root: Path, keys_digest: str) -> list[dict[str, Any]]:
+    """The recorded runs of the plan whose keys digest is ``keys_digest``, oldest first."""
+    return [r for r in read_runs(workspace_root) if r.get("keys_digest") == keys_digest]
+
+
+def cache_state(entry: dict[str, Any]) -> str:
+    """``cold`` (every cell ran), ``warm`` (every cell reused) or ``resumed`` (some of each)."""
+    ran = entry["builds_run"] + entry["evals_run"]
+    reused = entry["builds_reused"] + entry["evals_reused"]
+    return "warm" if ran == 0 else "cold" if reused == 0 else "resumed"
+
+
+def describe(entry: dict[str, Any]) -> str:
+    """One line: ``2026-12-02 07:37 cold: 89 builds + 97 evaluations run, 0 reused, 44.7 min (2 jobs,
+    <cpu>, git 680b0dc)``."""
+    minutes = entry["seconds"] / 60
+    took = f"{minutes:.1f} min" if minutes >= 1 else f"{entry['seconds']:.0f} s"
+    failed = f", {entry['failures']} failed" if entry["failures"] else ""
+    git = (entry.get("git") or "?")[:7]
+    how = f"{entry['jobs']} jobs" if entry.get("jobs") else entry.get("executor", "?")
+    return (
+        f"{entry['finished'][:16]} {cache_state(entry)}: {entry['builds_run']} builds + {entry['evals_run']} "
+        f"evaluations run, {entry['builds_reused'] + entry['evals_reused']} reused{failed}, {took} "
+        f"({how}, {entry['machine']}, git {git})"
+    )

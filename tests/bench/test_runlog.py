@@ -1,0 +1,81 @@
+"""``bench.runlog``: every ``bench.all`` run is recorded in its workspace, and a report rendered later
+from the cached cells (``--no-run``) lists the runs of its plan, so a cold run's wall clock stays with
+the outputs built from its cells."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+import bench.runner
+from bench.all import main
+from bench.runlog import SHOWN, cache_state, describe, read_runs, record_run, runs_of, runs_path
+from bench.runner import RunSummary
+
+COUNTS = {
+    "builds_run": 3,
+    "builds_reused": 0,
+    "evals_run": 2,
+    "evals_reused": 0,
+    "failures": [],
+    "seconds": 12.34,
+}
+
+
+def _record(root, digest="d1", **counts):
+    identity = {"specs": ["tab17"], "keys_digest": digest, "tasks": 5}
+    return record_run(root, "tiny", identity, {**COUNTS, **counts}, "local", 2, 75.0)
+
+
+def test_runs_are_appended_and_filtered_by_plan(tmp_path):
+    assert read_runs(tmp_path) == []
+    first = _record(tmp_path)
+    _record(tmp_path, digest="other")
+    warm = _record(tmp_path, builds_run=0, evals_run=0, builds_reused=3, evals_reused=2, seconds=1.0)
+    assert [r["keys_digest"] for r in read_runs(tmp_path)] == ["d1", "other", "d1"]
+    assert runs_of(tmp_path, "d1") == [first, warm]
+    assert first["seconds"] == 75.0 and first["cells_seconds"] == 12.3 and first["jobs"] == 2
+    assert first["machine"] and first["specs"] == ["tab17"]
+
+
+def test_cache_state_and_description(tmp_path):
+    cold = _record(tmp_path)
+    warm = _record(tmp_path, builds_run=0, evals_run=0, builds_reused=3, evals_reused=2)
+    resumed = _record(tmp_path, builds_run=1, builds_reused=2, failures=["x"])
+    assert [cache_state(e) for e in (cold, warm, resumed)] == ["cold", "warm", "resumed"]
+    line = describe(cold)
+    assert " cold: 3 builds + 2 evaluations run, 0 reused, 1.2 min (2 jobs, " in line
+    assert "1 failed" in describe(resumed) and "failed" not in line
+
+
+def test_a_damaged_record_names_its_file(tmp_path):
+    runs_path(tmp_path).write_text("{not json", encoding="utf-8")
+    with pytest.raises(ValueError, match=r"runs\.json: not a run record"):
+        read_runs(tmp_path)
+
+
+def test_a_later_render_lists_the_runs_of_its_plan(tmp_path, monkeypatch):
+    """``bench.all`` records its run after writing the report; ``--no-run`` renders list it, newest
+    ``SHOWN`` first-to-last."""
+    ran = RunSummary(builds_run=4, evals_run=3, seconds=30.0)
+    monkeypatch.setattr(bench.runner, "execute", lambda *a, **k: ran)
+    ws, out = tmp_path / "ws", tmp_path / "out"
+    args = ["--tables", "17", "--preset", "tiny", "--workspace", str(ws), "--out", str(out), "--no-progress"]
+    assert main(args) == 0
+    [entry] = read_runs(ws)
+    assert (entry["builds_run"], entry["evals_run"], entry["cells_seconds"]) == (4, 3, 30.0)
+    report = out / "reports" / "subsets" / "tab17" / "reports"
+    assert json.loads((report / "summary.json").read_text())["header"]["history"] == []
+
+    assert main([*args, "--no-run"]) == 0
+    assert len(read_runs(ws)) == 1, "a --no-run render is not a run"
+    header = json.loads((report / "summary.json").read_text())["header"]
+    assert header["history"] == [entry] and header["cells"]["keys_digest"] == entry["keys_digest"]
+    assert f"  - {describe(entry)}" in (report / "REPORT.md").read_text()
+
+    for _ in range(SHOWN):
+        assert main(args) == 0
+    assert main([*args, "--no-run"]) == 0
+    md = (report / "REPORT.md").read_text()
+    assert "(1 older not shown)" in md and md.count(" cold: 4 builds") == SHOWN
