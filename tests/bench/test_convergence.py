@@ -15,7 +15,7 @@ SCENE = "dnerf:mutant"
 
 @pytest.mark.realdata
 @pytest.mark.slow
-def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
+def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch, capsys):
     out = tmp_path / "reports" / "convergence"
     readme = tmp_path / "README.md"
     readme.write_text("# x\n<!-- results:convergence -->\nSTALE-BODY\n<!-- /results:convergence -->\n")
@@ -89,6 +89,7 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch):
     with pytest.raises(SystemExit) as err:
         convergence.main([*more[:9], str(tmp_path / "empty"), *more[10:]])
     assert err.value.code == 2
+    assert "no cell of this library computed yet (run without --no-run)" in capsys.readouterr().err
     readme.write_text(written + "<!-- results:convergence-b -->\n<!-- /results:convergence-b -->\n")
     assert convergence.main([*args, "--section", "convergence-b"]) == 0  # one README section per scene
     assert readme.read_text().count("![convergence on dnerf:mutant]") == 2

@@ -226,7 +226,6 @@ def test_failing_cell_is_isolated(run):
 
 def test_submitit_local_executor(run, tmp_path):
     """The Slurm path through submitit's local executor: re-evaluate one cell in a copied workspace."""
-    pytest.importorskip("submitit")
     ws = Workspace(tmp_path / "ws")
     shutil.copytree(run["ws"].root / "store", ws.root / "store")
     sp = SpecPlan(run["spec"], [], [0], [_ok_slots(run)[0]])

@@ -124,6 +124,7 @@ def test_section_without_published_numbers():
 
 
 def test_published_tables_have_sources_and_known_rows():
+    assert list_original_tables(), "no tables/paper/originals/*.json"
     for table_id in list_original_tables():
         table = load_original_table(table_id)
         assert all(v["source"] and v["printed"] for v in table.values)

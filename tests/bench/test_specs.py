@@ -106,7 +106,9 @@ def test_in_text_numbers_match_the_paper_source():
     if not tex.is_file():
         pytest.skip(f"paper source not found at {tex}")
     text = tex.read_text(encoding="utf-8")
-    for path in PAPER_TEXT_DIR.glob("*.json"):
+    paths = sorted(PAPER_TEXT_DIR.glob("*.json"))
+    assert paths, f"no in-text number files under {PAPER_TEXT_DIR}"
+    for path in paths:
         data = json.loads(path.read_text())
         assert data["source_sentence"] in text, path
         for v in data["values"]:

@@ -3,22 +3,26 @@
 from __future__ import annotations
 
 import json
-import time
 
 import pytest
 
 from bench import profile
 
 
-def test_nested_time_goes_to_the_inner_category_only():
+def test_nested_time_goes_to_the_inner_category_only(monkeypatch):
+    clock = [100.0]  # a clock the test advances: exact seconds, no sleeping
+    monkeypatch.setattr(profile.time, "perf_counter", lambda: clock[0])
     timers = profile.ExclusiveTimers()
     with timers.timing("other"):
-        time.sleep(0.02)
+        clock[0] += 2.0
         with timers.timing("fields"):
-            time.sleep(0.05)
-        time.sleep(0.02)
-    assert 0.045 < timers.seconds["fields"] < 0.09
-    assert 0.035 < timers.seconds["other"] < 0.07
+            clock[0] += 5.0
+            with timers.timing("raster fwd"):
+                clock[0] += 1.0
+        clock[0] += 3.0
+    assert timers.seconds["fields"] == 5.0 and timers.seconds["raster fwd"] == 1.0
+    assert timers.seconds["other"] == 5.0
+    assert sum(timers.seconds.values()) == 11.0  # every second counted once
 
 
 def test_breakdown_covers_the_step_and_restores_what_it_wrapped(tmp_path, capsys):

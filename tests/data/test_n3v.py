@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import pickle
-import time
 
 import helpers.data_layouts as fx
 import numpy as np
@@ -142,9 +141,18 @@ def test_views_pickle_for_worker_processes(tmp_path):
     torch.testing.assert_close(copy.image(), view.image())
 
 
-def test_lazy_load_is_fast(tmp_path):
+def test_load_decodes_no_frame(tmp_path, monkeypatch):
+    """Loading reads each video's index only; frames are decoded when a view's image is asked for."""
+    from moegs.data._video import VideoReader
+
     fx.write_n3v(tmp_path, cams=3, frames=30)
-    t0 = time.perf_counter()
+    decode = VideoReader._decode
+
+    def refuse(self, index):
+        raise AssertionError(f"decoded frame {index} of {self.path} while loading")
+
+    monkeypatch.setattr(VideoReader, "_decode", refuse)
     scene = load_n3v(tmp_path, frames=None, duration=30, num_points=0)
-    assert time.perf_counter() - t0 < 2.0
-    assert len(scene.cache) == 0  # nothing decoded at load time
+    assert len(scene.cache) == 0
+    monkeypatch.setattr(VideoReader, "_decode", decode)
+    assert scene.train[0].image().shape[-1] == 3 and len(scene.cache) > 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pycolmap
 import pytest
 import torch
 
@@ -20,8 +21,6 @@ from moegs.data.points import (
     triangulate,
 )
 from moegs.data.scene import View
-
-pycolmap = pytest.importorskip("pycolmap")
 
 
 @pytest.fixture(scope="module")
@@ -145,8 +144,6 @@ def _brute(points: torch.Tensor, k: int) -> torch.Tensor:
 
 @pytest.mark.parametrize("method", ["torch", "kdtree"])
 def test_knn_matches_brute_force(method):
-    if method == "kdtree":
-        pytest.importorskip("scipy")
     g = torch.Generator().manual_seed(0)
     pts = torch.randn(600, 3, generator=g)
     pts = torch.cat([pts, pts[:20]])  # exact duplicates: distance 0 to the twin

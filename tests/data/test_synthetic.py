@@ -352,7 +352,6 @@ def test_mp4_roundtrip_psnr(tmp_path):
 
 
 def test_loads_through_real_n3v_loader(tmp_path):
-    pytest.importorskip("moegs.data.n3v", reason="N3V loader not available")
     small = {"width": 48, "height": 36, "num_frames": 4, "num_cameras": 4, "triangulate": False}
     scene = load_synthetic("n3v_like", root=tmp_path, overrides=small, progress=False, num_points=500)
     assert scene.name == "synthetic:n3v_like" and scene.stand_in == "N3V (synthetic stand-in)"
@@ -382,7 +381,6 @@ def test_loads_through_real_n3v_loader(tmp_path):
 
 
 def test_loads_through_real_dnerf_loader(tmp_path):
-    pytest.importorskip("moegs.data.dnerf", reason="D-NeRF loader not available")
     small = {"width": 32, "height": 32, "num_frames": 4, "num_val": 1, "num_test": 2}
     scene = load_synthetic("dnerf_like", root=tmp_path, overrides=small, progress=False, num_points=100)
     assert scene.stand_in == "D-NeRF (synthetic stand-in)" and not scene.multiview

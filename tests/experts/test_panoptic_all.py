@@ -38,9 +38,12 @@ def test_unknown_expert_fails_before_training(tmp_path, capsys):
 @pytest.mark.slow
 @pytest.mark.realdata
 def test_all_experts_on_basketball_quick(basketball_root, tmp_path):
+    from helpers.training import code_hash
+
     from moegs.paths import cache_root
 
-    out = cache_root() / "tests" / "compare-panoptic-basketball-quick"
+    # one folder per library version: compare reuses any finished run in it (moegs.train.reuse)
+    out = cache_root() / "tests" / f"compare-panoptic-basketball-quick_{code_hash()}"
     assert (
         main(
             [

@@ -22,7 +22,8 @@ def test_round_trip_through_json(config):
 
 def test_base_typed_field_restores_subclass():
     data = to_dict(StaticConfig(strategy=MCMCStrategy(cap_max=7)))
-    assert isinstance(from_dict(StaticConfig, data).strategy, MCMCStrategy)
+    back = from_dict(StaticConfig, data).strategy
+    assert isinstance(back, MCMCStrategy) and back.cap_max == 7
     assert isinstance(from_dict(StaticConfig, to_dict(StaticConfig())).strategy, ADCStrategy)
 
 

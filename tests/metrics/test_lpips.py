@@ -141,7 +141,7 @@ def test_unavailable_weights_raise(monkeypatch, tmp_path, frame):
         LPIPSUnavailable, match=rf"^LPIPS-alex weights unavailable: looked in {folder}, missing slice_1"
     ):
         lpips(frame, frame)
-    with pytest.raises(LPIPSUnavailable):
+    with pytest.raises(LPIPSUnavailable, match=rf"looked in {folder}"):
         LPIPS()
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import mmap
-import time
 
 import numpy as np
 import pytest
@@ -13,20 +12,23 @@ import torch
 from moegs.metrics import SpeedResult, measure_render
 
 
-def test_times_only_the_render_with_warmup():
+def test_times_only_the_render_with_warmup(monkeypatch):
+    import moegs.metrics.speed as speed
+
+    clock = [0]  # nanoseconds, advanced by the render itself: exact times, no sleeping
+    monkeypatch.setattr(speed.time, "perf_counter_ns", lambda: clock[0])
     calls = []
 
     def render(view):
         calls.append(view)
-        time.sleep(0.25 if len(calls) == 1 else 0.002 * (1 + view))  # a slow first call (warm-up cost)
+        clock[0] += 250_000_000 if len(calls) == 1 else 2_000_000 * (1 + view)  # a slow first call
         return torch.zeros(4)
 
     res = measure_render(render, views=[0, 1, 2], warmup=2, repeats=3)
     assert isinstance(res, SpeedResult)
     assert len(calls) == 2 + 3 * 3
-    assert len(res.per_view_ms) == 3 and [len(s) for s in res.samples_ms] == [3, 3, 3]
-    assert all(t >= 1.9 for t in res.per_view_ms[:1]) and res.per_view_ms[2] >= 5.9
-    assert max(max(s) for s in res.samples_ms) < 200  # the slow first call was a warm-up, not timed
+    assert res.samples_ms == [[2.0] * 3, [4.0] * 3, [6.0] * 3]  # the slow first call was a warm-up
+    assert res.per_view_ms == [2.0, 4.0, 6.0]
     assert res.ms_per_view_median == pytest.approx(np.median(res.per_view_ms))
     assert res.fps_median == pytest.approx(1000 / res.ms_per_view_median)
     assert res.device.startswith("cpu (") and res.warmup == 2 and res.repeats == 3
