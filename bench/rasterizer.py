@@ -55,23 +55,23 @@ def run_suite(json_path: Path, backend: str = "cpu") -> None:
 
 
 def _cases(data: dict) -> dict[tuple, dict]:
-    """``(test, n, res, backward, backend, single_pass) -> {"median_ms", "peak_mb"}``.
-
-    ``peak_mb`` is the render's peak RSS above the process's RSS before it (CPU) or the peak allocated
-    GPU memory (CUDA).
-    """
+    """``(test, n, res, backward, backend, single_pass) -> {"median_ms", "peak_mb"}`` (``peak_mb``)."""
     out = {}
     for b in data["benchmarks"]:
         info = b["extra_info"]
         test = b["name"].split("[")[0]
         key = (test, info["n"], info["res"], info["backward"], info["backend"], info.get("single_pass", True))
-        peak = info.get("peak_rss_mb")
-        extra = None if peak is None else peak - info.get("rss_before_mb", 0.0)
-        out[key] = {
-            "median_ms": 1000 * b["stats"]["median"],
-            "peak_mb": info.get("peak_cuda_allocated_mb", extra),
-        }
+        out[key] = {"median_ms": 1000 * b["stats"]["median"], "peak_mb": peak_mb(info)}
     return out
+
+
+def peak_mb(extra_info: dict) -> float | None:
+    """What one render needs in MB: peak RSS above the process's RSS before it (CPU), or the peak allocated
+    GPU memory (CUDA); None when the case recorded neither."""
+    if "peak_cuda_allocated_mb" in extra_info:
+        return extra_info["peak_cuda_allocated_mb"]
+    peak = extra_info.get("peak_rss_mb")
+    return None if peak is None else peak - extra_info.get("rss_before_mb", 0.0)
 
 
 def _ms(value: float | None) -> str:

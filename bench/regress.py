@@ -1,0 +1,151 @@
+"""Did a change make the benchmarks slower, hungrier or different? Two pytest-benchmark runs, case by case.
+
+    tox -e bench                          # before the change (autosaved under .benchmarks/)
+    tox -e bench                          # after it, in the same session on the same machine
+    python -m bench.regress               # the two newest autosaved runs: exit 1 on a regression
+    python -m bench.regress BASE.json NEW.json --time 0.10 --memory 0.05
+
+pytest-benchmark compares times (``--benchmark-compare-fail``) but not the peak memory our suites
+record in ``extra_info``, nor the results they record beside a timing (``mean_loss`` of the training
+benchmark: a speed-up that changes results is not a speed-up). This compares all three for every case
+both runs hold: the median time ratio, the render's peak memory (``bench.rasterizer.peak_mb``) and the
+recorded results. Times of two runs are only comparable on one machine under the same load, so run both
+in one session, nothing else running. The default allows 25 % on time: two runs of the same code on the
+2-core CPU machine differed by up to 15 % on the smallest render case (5 rounds each); run the suite
+twice before the change (an A/A comparison) to see the noise of yours, and pass ``--time`` to match.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from bench.rasterizer import peak_mb
+
+SAVED = Path(".benchmarks")  # pytest-benchmark's --benchmark-autosave folder, under the working directory
+RESULT_KEYS = ("mean_loss",)  # extra_info values a benchmark computes, which a speed change must not move
+MEMORY_SLACK_MB = 2.0  # RSS moves by a page table or two between processes: no verdict below this
+
+
+@dataclass(frozen=True)
+class Change:
+    """One case present in both runs: ``time`` and ``memory`` are new / base (None when not recorded)."""
+
+    name: str
+    time: float
+    memory: float | None
+    memory_mb: tuple[float, float] | None
+    checked: tuple[str, ...]  # the RESULT_KEYS the base run recorded
+    results: tuple[str, ...]  # those whose values differ
+
+
+def read_run(path: Path) -> dict[str, dict]:
+    """``{fullname: benchmark}`` of a pytest-benchmark JSON; ``ValueError`` naming the file otherwise."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        return {b["fullname"]: b for b in data["benchmarks"]}
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such benchmark JSON") from None
+    except (json.JSONDecodeError, KeyError, TypeError) as err:
+        raise ValueError(f"{path}: not a pytest-benchmark JSON (needs benchmarks[].fullname): {err}") from err
+
+
+def newest_runs(folder: Path = SAVED, count: int = 2) -> list[Path]:
+    """The ``count`` newest autosaved runs under ``folder`` (``<machine>/NNNN_*.json``), oldest first."""
+    runs = sorted(folder.glob("*/[0-9][0-9][0-9][0-9]_*.json"), key=lambda p: (p.name[:4], p.stat().st_mtime))
+    if len(runs) < count:
+        raise ValueError(f"{folder}: {len(runs)} autosaved run(s), need {count} (run `tox -e bench` twice)")
+    return runs[-count:]
+
+
+def compare(base: dict[str, dict], new: dict[str, dict]) -> list[Change]:
+    """One ``Change`` per case both runs hold, in the new run's order."""
+    out = []
+    for name, b in new.items():
+        if name not in base:
+            continue
+        a = base[name]
+        memory = (peak_mb(a["extra_info"]), peak_mb(b["extra_info"]))
+        recorded = None if None in memory else memory
+        ratio = None if recorded is None or recorded[0] <= 0 else recorded[1] / recorded[0]
+        checked = tuple(k for k in RESULT_KEYS if k in a["extra_info"])
+        differ = tuple(k for k in checked if a["extra_info"][k] != b["extra_info"].get(k))
+        time = b["stats"]["median"] / a["stats"]["median"]
+        out.append(Change(name, time, ratio, recorded, checked, differ))
+    return out
+
+
+def regressions(changes: list[Change], time: float, memory: float) -> list[str]:
+    """Why each regressed case fails: slower than ``1 + time``, more peak memory than ``1 + memory`` (and
+    ``MEMORY_SLACK_MB``), or other results."""
+    out = []
+    for c in changes:
+        if c.time > 1 + time:
+            out.append(f"{c.name}: median time x{c.time:.2f} (limit x{1 + time:.2f})")
+        if (
+            c.memory is not None
+            and c.memory > 1 + memory
+            and c.memory_mb[1] - c.memory_mb[0] > MEMORY_SLACK_MB
+        ):
+            base, now = c.memory_mb
+            out.append(
+                f"{c.name}: peak memory {base:.0f} -> {now:.0f} MB (x{c.memory:.2f}, limit x{1 + memory:.2f})"
+            )
+        if c.results:
+            out.append(f"{c.name}: results differ ({', '.join(c.results)})")
+    return out
+
+
+def markdown(changes: list[Change], base: Path, new: Path, only: tuple[list[str], list[str]]) -> str:
+    """The comparison table, and the cases only one run holds."""
+    lines = [
+        f"Benchmarks: `{new}` against `{base}` (ratios new / base; > 1 is slower or larger)",
+        "",
+        "| case | median time | peak memory | results |",
+        "|---|---|---|---|",
+    ]
+    for c in changes:
+        memory = (
+            "–" if c.memory is None else f"x{c.memory:.2f} ({c.memory_mb[0]:.0f} -> {c.memory_mb[1]:.0f} MB)"
+        )
+        results = "differ: " + ", ".join(c.results) if c.results else "same" if c.checked else "–"
+        lines.append(f"| {c.name.split('::')[-1]} | x{c.time:.2f} | {memory} | {results} |")
+    for label, names in zip(("only in the base run", "only in the new run"), only, strict=True):
+        if names:
+            lines += ["", f"{label}: " + ", ".join(n.split("::")[-1] for n in names)]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m bench.regress", description=__doc__.split("\n\n")[0])
+    p.add_argument(
+        "runs", nargs="*", type=Path, help="BASE.json NEW.json (default: the two newest autosaved)"
+    )
+    p.add_argument("--time", type=float, default=0.25, help="allowed median slow-down (default 0.25 = 25%%)")
+    p.add_argument("--memory", type=float, default=0.10, help="allowed peak-memory growth (default 0.10)")
+    args = p.parse_args(argv)
+    if len(args.runs) not in (0, 2):
+        p.error(f"give two runs (BASE.json NEW.json) or none, got {len(args.runs)}")
+    try:
+        base_path, new_path = args.runs or newest_runs()
+        base, new = read_run(base_path), read_run(new_path)
+    except ValueError as err:
+        print(f"bench.regress: {err}", file=sys.stderr)
+        return 2
+    changes = compare(base, new)
+    if not changes:
+        print(f"bench.regress: {base_path} and {new_path} have no case in common", file=sys.stderr)
+        return 2
+    only = ([n for n in base if n not in new], [n for n in new if n not in base])
+    print(markdown(changes, base_path, new_path, only))
+    failed = regressions(changes, args.time, args.memory)
+    for line in failed:
+        print(f"REGRESSION {line}", file=sys.stderr)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
