@@ -20,6 +20,7 @@ import re
 from pathlib import Path
 
 from bench.presets import BenchPreset
+from bench.results import write_text_atomic
 from bench.spec import metric
 from bench.values import AVERAGE, STAND_IN, OurCell, SpecValues
 
@@ -268,7 +269,7 @@ def render_table(values: SpecValues, preset: BenchPreset, header: str = "") -> s
 def write_table(values: SpecValues, preset: BenchPreset, out_dir: Path, header: str = "") -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / f"{values.spec.id}.tex"
-    path.write_text(render_table(values, preset, header), encoding="utf-8")
+    write_text_atomic(path, render_table(values, preset, header))
     return path
 
 
@@ -283,7 +284,7 @@ def write_index(paths: list[Path], out_dir: Path) -> Path:
     lines += [f"\\input{{{p.stem}}}\n\\clearpage" for p in paths]
     lines.append(r"\end{document}")
     path = out_dir / "all.tex"
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_text_atomic(path, "\n".join(lines) + "\n")
     return path
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.paper import load_original_table, load_paper_table
+from bench.results import write_text_atomic
 from bench.spec import EXPERTS, QUALITY
 
 ROW_ALIASES = {"static": "3D-GS"}
@@ -178,7 +179,7 @@ def split_section(path: str | Path, section: str) -> tuple[str, str]:
 def update_readme(path: str | Path, section: str, body: str) -> Path:
     """Replace the text between ``<!-- results:<section> -->`` and ``<!-- /results:<section> -->``."""
     head, tail = split_section(path, section)
-    Path(path).write_text(f"{head}\n{body.rstrip()}\n{tail}", encoding="utf-8")
+    write_text_atomic(Path(path), f"{head}\n{body.rstrip()}\n{tail}")
     return Path(path)
 
 

@@ -21,6 +21,7 @@ from typing import Any
 from bench.claims import FAILED, HELD, NA, NOISE, evaluate
 from bench.keys import code_version, git_commit
 from bench.presets import BenchPreset
+from bench.results import write_text_atomic
 from bench.runlog import FILE as RUNS_FILE
 from bench.runlog import SHOWN, describe
 from bench.signals import NOISE_PROXY
@@ -613,8 +614,8 @@ def write_report(
     header = _header(preset, run, cells, history)
     signals = signals or {}
     paths = {"md": out_dir / "REPORT.md", "html": out_dir / "REPORT.html", "json": out_dir / "summary.json"}
-    paths["md"].write_text(render_markdown(reports, header, out_dir, signals), encoding="utf-8")
-    paths["html"].write_text(render_html(reports, header, out_dir), encoding="utf-8")
+    write_text_atomic(paths["md"], render_markdown(reports, header, out_dir, signals))
+    write_text_atomic(paths["html"], render_html(reports, header, out_dir))
     summary = {
         "header": header,
         "noise": signals.get("noise", {}),
@@ -623,5 +624,5 @@ def write_report(
         "compute": signals.get("compute", {}),
         "specs": [_relative(asdict(r), out_dir) for r in reports],
     }
-    paths["json"].write_text(json.dumps(summary, indent=1, default=str) + "\n", encoding="utf-8")
+    write_text_atomic(paths["json"], json.dumps(summary, indent=1, default=str) + "\n")
     return paths

@@ -46,12 +46,17 @@ class ResultError(ValueError):
     """A result file is unreadable or inconsistent; the message names the file."""
 
 
-def write_json_atomic(path: Path, payload: dict[str, Any]) -> None:
-    """Write ``payload`` to ``path`` via a temporary file and ``os.replace`` (never half-written)."""
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file and ``os.replace`` (never half-written)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(payload, indent=1, sort_keys=True, default=str) + "\n", encoding="utf-8")
+    tmp.write_text(text, encoding="utf-8")
     os.replace(tmp, path)
+
+
+def write_json_atomic(path: Path, payload: dict[str, Any]) -> None:
+    """Write ``payload`` to ``path`` as sorted, indented JSON (``write_text_atomic``)."""
+    write_text_atomic(path, json.dumps(payload, indent=1, sort_keys=True, default=str) + "\n")
 
 
 def content_hash(payload: dict[str, Any]) -> str:

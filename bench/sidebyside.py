@@ -15,6 +15,7 @@ from pathlib import Path
 from bench.latex import MACROS, POSTAMBLE, PREAMBLE, fmt, fmt_delta, tex
 from bench.plan import plan_spec
 from bench.presets import BenchPreset, get_preset
+from bench.results import write_text_atomic
 from bench.spec import Spec
 from bench.store import Workspace
 from bench.values import SpecValues
@@ -188,7 +189,7 @@ def render_latex(cmp: Comparison, header: str = "") -> str:
 def write_latex(cmp: Comparison, out_dir: Path, header: str = "") -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / f"{cmp.spec.id}_presets.tex"
-    path.write_text(render_latex(cmp, header), encoding="utf-8")
+    write_text_atomic(path, render_latex(cmp, header))
     return path
 
 
