@@ -8,6 +8,7 @@ their cells wrote next to their result JSON.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -24,9 +25,12 @@ OURS, PAPER = "#1f77b4", "#9e9e9e"
 
 
 def _save(fig: Any, path: Path) -> Path:
+    """Write ``fig`` to ``path`` through a temporary file (an interrupted render leaves no broken image)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110, bbox_inches="tight")
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    fig.savefig(tmp, dpi=110, bbox_inches="tight", format=path.suffix.lstrip("."))
     plt.close(fig)
+    os.replace(tmp, path)
     return path
 
 
