@@ -56,7 +56,7 @@ def record_run(
         "preset": preset,
         "specs": identity["specs"],
         "keys_digest": identity["keys_digest"],
-        "git": git_commit().get("commit"),
+        "git": git_commit(),  # {"commit", "dirty"}: dirty when moegs/ had uncommitted changes
         "machine": machine_line(),
         "executor": executor,
         "jobs": jobs,
@@ -87,10 +87,13 @@ def describe(entry: dict[str, Any]) -> str:
     minutes = entry["seconds"] / 60
     took = f"{minutes:.1f} min" if minutes >= 1 else f"{entry['seconds']:.0f} s"
     failed = f", {entry['failures']} failed" if entry["failures"] else ""
-    git = (entry.get("git") or "?")[:7]
+    git = entry.get("git") or {}
+    version = (git.get("commit") or "?")[:7] + (
+        " with uncommitted changes to moegs" if git.get("dirty") else ""
+    )
     how = f"{entry['jobs']} jobs" if entry.get("jobs") else entry.get("executor", "?")
     return (
         f"{entry['finished'][:16]} {cache_state(entry)}: {entry['builds_run']} builds + {entry['evals_run']} "
         f"evaluations run, {entry['builds_reused'] + entry['evals_reused']} reused{failed}, {took} "
-        f"({how}, {entry['machine']}, git {git})"
+        f"({how}, {entry['machine']}, git {version})"
     )

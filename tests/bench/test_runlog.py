@@ -47,6 +47,9 @@ def test_cache_state_and_description(tmp_path):
     line = describe(cold)
     assert " cold: 3 builds + 2 evaluations run, 0 reused, 1.2 min (2 jobs, " in line
     assert "1 failed" in describe(resumed) and "failed" not in line
+    clean, dirty = ({**cold, "git": {"commit": "0123456789", "dirty": d}} for d in (False, True))
+    assert describe(clean).endswith(", git 0123456)")
+    assert describe(dirty).endswith(", git 0123456 with uncommitted changes to moegs)")
 
 
 def test_a_damaged_record_names_its_file(tmp_path):
