@@ -169,15 +169,31 @@ def _header(
     }
 
 
-def history_markdown(history: list[dict[str, Any]]) -> list[str]:
-    """Header bullets: the newest recorded runs of the report's plan (``bench.runlog``), oldest first."""
-    if not history:
-        return []
+def _recent_runs(history: list[dict[str, Any]]) -> tuple[str, list[str]]:
+    """``(title, lines)``: the newest ``SHOWN`` recorded runs of the report's plan (``bench.runlog``),
+    oldest first, under a title that says how many older ones it leaves out."""
     shown = history[-SHOWN:]
     older = f" ({len(history) - len(shown)} older not shown)" if len(history) > len(shown) else ""
+    return f"runs of these cells recorded in the workspace ({RUNS_FILE}){older}", [describe(r) for r in shown]
+
+
+def history_markdown(history: list[dict[str, Any]]) -> list[str]:
+    """Header bullets of ``_recent_runs`` (none without a recorded run)."""
+    if not history:
+        return []
+    title, lines = _recent_runs(history)
+    return [f"- {title}:", *(f"  - {line}" for line in lines)]
+
+
+def history_html(history: list[dict[str, Any]]) -> list[str]:
+    """``_recent_runs`` as an HTML paragraph and list (none without a recorded run)."""
+    if not history:
+        return []
+    title, lines = _recent_runs(history)
     return [
-        f"- runs of these cells recorded in the workspace (`{RUNS_FILE}`){older}:",
-        *(f"  - {describe(entry)}" for entry in shown),
+        f"<p>{html.escape(title)}:</p><ul>",
+        *(f"<li>{html.escape(line)}</li>" for line in lines),
+        "</ul>",
     ]
 
 
@@ -528,6 +544,7 @@ def render_html(reports: list[SpecReport], header: dict[str, Any], base: Path | 
         f"({e(h['preset_description'])}){' - <b>reduced scale</b>' if h['reduced_scale'] else ''}; "
         f"library code version <code>{e(h['moegs_code_version'])}</code>, git "
         f"<code>{e(str(h['git'].get('commit')))}</code>.</p>",
+        *history_html(h.get("history", [])),
         "<p>Numbers come only from local result JSONs (ours) and tables/paper (the paper). "
         "&Delta; = ours - paper, "
         "only where ours ran on the paper's real scene(s).</p>",

@@ -4,6 +4,7 @@ the outputs built from its cells."""
 
 from __future__ import annotations
 
+import html
 import json
 
 import pytest
@@ -76,9 +77,12 @@ def test_a_later_render_lists_the_runs_of_its_plan(tmp_path, monkeypatch):
     header = json.loads((report / "summary.json").read_text())["header"]
     assert header["history"] == [entry] and header["cells"]["keys_digest"] == entry["keys_digest"]
     assert f"  - {describe(entry)}" in (report / "REPORT.md").read_text()
+    assert f"<li>{html.escape(describe(entry))}</li>" in (report / "REPORT.html").read_text()
 
     for _ in range(SHOWN):
         assert main(args) == 0
     assert main([*args, "--no-run"]) == 0
     md = (report / "REPORT.md").read_text()
     assert "(1 older not shown)" in md and md.count(" cold: 4 builds") == SHOWN
+    page = (report / "REPORT.html").read_text()
+    assert "(1 older not shown)" in page and page.count(" cold: 4 builds") == SHOWN
