@@ -214,10 +214,15 @@ def main(argv: list[str] | None = None) -> int:
     from dataclasses import fields
 
     from bench.plan import make_plan
-    from bench.runlog import record_run
+    from bench.runlog import read_runs, record_run
     from bench.store import Workspace
 
     workspace = Workspace(args.workspace)
+    try:
+        read_runs(workspace.root)  # a damaged record stops the command now, not after the cells
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     start = time.perf_counter()
     specs = [get_spec(s) for s in list_specs()]
     if args.candidate:
@@ -279,11 +284,12 @@ def main(argv: list[str] | None = None) -> int:
         }
     quick_summary = output_dirs(args.out, get_preset("quick"), complete, complete)[1] / "summary.json"
     reported = run_plan if subset else plan
+    if run is not None:  # before the outputs, so that this run's report lists it too
+        jobs = args.jobs if args.executor == "local" else None
+        seconds = time.perf_counter() - start
+        record_run(workspace.root, preset.name, reported.identity(), run, args.executor, jobs, seconds)
     outputs = write_outputs(reported, workspace, selected, tables_dir, reports_dir, run, quick_summary)
     elapsed = time.perf_counter() - start
-    if run is not None:  # after the report: it lists the earlier runs of its plan, this one is its header's
-        jobs = args.jobs if args.executor == "local" else None
-        record_run(workspace.root, preset.name, reported.identity(), run, args.executor, jobs, elapsed)
     _print_summary(outputs["reports"], selected, outputs["paths"], elapsed)
     if run and run["failures"]:
         print(

@@ -30,6 +30,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from bench.results import atomic_path, write_text_atomic
 from bench.schedules import QUICK_ITERATIONS, scaled_overrides
 
 
@@ -258,9 +259,11 @@ def plot(records: list[dict], paper: dict[str, float], title: str, path: Path) -
     axes[0].legend(fontsize=7)
     fig.suptitle(title + (" (dotted: paper, full resolution and schedule)" if paper else ""), fontsize=9)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110, format=path.suffix.lstrip("."))
+    finally:
+        plt.close(fig)
     return path
 
 
@@ -350,7 +353,7 @@ def main(argv: list[str] | None = None) -> int:
     stem = args.scene.replace(":", "_") + variant.suffix
     plot(records, paper, f"Convergence on {args.scene}{variant.words}", args.out / f"{stem}.png")
     table = markdown(records, paper)
-    (args.out / f"{stem}.md").write_text(table + "\n")
+    write_text_atomic(args.out / f"{stem}.md", table + "\n")
     from moegs.io import write_json
 
     write_json(args.out / f"{stem}.json", {"scene": args.scene, "paper": paper, "cells": records})

@@ -8,7 +8,6 @@ their cells wrote next to their result JSON.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -19,6 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from bench.results import atomic_path  # noqa: E402
 from bench.values import AVERAGE, MEAN, STAND_IN, SpecValues  # noqa: E402
 
 OURS, PAPER = "#1f77b4", "#9e9e9e"
@@ -26,11 +26,11 @@ OURS, PAPER = "#1f77b4", "#9e9e9e"
 
 def _save(fig: Any, path: Path) -> Path:
     """Write ``fig`` to ``path`` through a temporary file (an interrupted render leaves no broken image)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    fig.savefig(tmp, dpi=110, bbox_inches="tight", format=path.suffix.lstrip("."))
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110, bbox_inches="tight", format=path.suffix.lstrip("."))
+    finally:
+        plt.close(fig)
     return path
 
 

@@ -25,6 +25,7 @@ import sys
 from pathlib import Path
 
 from bench.keys import REPO
+from bench.results import write_text_atomic
 
 SPEEDUP_TARGET = 3.0
 SINGLE_PASS_TARGET = 1.5
@@ -268,7 +269,7 @@ def main(argv: list[str] | None = None) -> int:
     data, *repeats = [json.loads(path.read_text()) for path in paths]
     table = markdown(data) if args.backend == "cpu" else cuda_markdown(data, repeats)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "table.md").write_text(table)
+    write_text_atomic(out / "table.md", table)
     print(table)
     if args.readme:
         from bench.readme import update_readme

@@ -10,9 +10,11 @@ record in ``extra_info``, nor the results they record beside a timing (``mean_lo
 benchmark: a speed-up that changes results is not a speed-up). This compares all three for every case
 both runs hold: the median time ratio, the render's peak memory (``bench.rasterizer.peak_mb``) and the
 recorded results. Times of two runs are only comparable on one machine under the same load, so run both
-in one session, nothing else running. The default allows 25 % on time: two runs of the same code on the
-2-core CPU machine differed by up to 15 % on the smallest render case (5 rounds each); run the suite
-twice before the change (an A/A comparison) to see the noise of yours, and pass ``--time`` to match.
+in one session, nothing else running, with the same thread settings (``OMP_NUM_THREADS``: another
+count may also change a loss in its last bits, which shows as "results differ"). The default allows
+25 % on time: two runs of the same code on the 2-core CPU machine differed by up to 15 % on the
+smallest render case (5 rounds each); run the suite twice before the change (an A/A comparison) to see
+the noise of yours, and pass ``--time`` to match.
 """
 
 from __future__ import annotations
@@ -32,7 +34,8 @@ MEMORY_SLACK_MB = 2.0  # RSS moves by a page table or two between processes: no 
 
 @dataclass(frozen=True)
 class Change:
-    """One case present in both runs: ``time`` and ``memory`` are new / base (None when not recorded)."""
+    """One case present in both runs: ``time`` is new / base, ``memory`` new / base with the base at least
+    ``MEMORY_SLACK_MB`` (None when a run did not record it)."""
 
     name: str
     time: float
@@ -46,18 +49,29 @@ def read_run(path: Path) -> dict[str, dict]:
     """``{fullname: benchmark}`` of a pytest-benchmark JSON; ``ValueError`` naming the file otherwise."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-        return {b["fullname"]: b for b in data["benchmarks"]}
+        run = {b["fullname"]: b for b in data["benchmarks"]}
+        bad = [name for name, b in run.items() if not b["stats"]["median"] > 0]
     except FileNotFoundError:
         raise ValueError(f"{path}: no such benchmark JSON") from None
     except (json.JSONDecodeError, KeyError, TypeError) as err:
-        raise ValueError(f"{path}: not a pytest-benchmark JSON (needs benchmarks[].fullname): {err}") from err
+        raise ValueError(
+            f"{path}: not a pytest-benchmark JSON (needs benchmarks[].fullname and .stats.median): {err!r}"
+        ) from err
+    if bad:
+        raise ValueError(f"{path}: median time not positive for {bad}")
+    return run
 
 
 def newest_runs(folder: Path = SAVED, count: int = 2) -> list[Path]:
-    """The ``count`` newest autosaved runs under ``folder`` (``<machine>/NNNN_*.json``), oldest first."""
-    runs = sorted(folder.glob("*/[0-9][0-9][0-9][0-9]_*.json"), key=lambda p: (p.name[:4], p.stat().st_mtime))
+    """The ``count`` newest autosaved runs (``NNNN_*.json``, oldest first) of the machine folder under
+    ``folder`` that holds the newest one: pytest-benchmark numbers each machine's runs on its own."""
+    saved = list(folder.glob("*/[0-9][0-9][0-9][0-9]_*.json"))
+    if not saved:
+        raise ValueError(f"{folder}: 0 autosaved run(s), need {count} (run `tox -e bench` twice)")
+    machine = max(saved, key=lambda p: p.stat().st_mtime).parent
+    runs = sorted(p for p in saved if p.parent == machine)  # by the run number the names start with
     if len(runs) < count:
-        raise ValueError(f"{folder}: {len(runs)} autosaved run(s), need {count} (run `tox -e bench` twice)")
+        raise ValueError(f"{machine}: {len(runs)} autosaved run(s), need {count} (run `tox -e bench` twice)")
     return runs[-count:]
 
 
@@ -67,13 +81,13 @@ def compare(base: dict[str, dict], new: dict[str, dict]) -> list[Change]:
     for name, b in new.items():
         if name not in base:
             continue
-        a = base[name]
-        memory = (peak_mb(a["extra_info"]), peak_mb(b["extra_info"]))
+        a_info, b_info = base[name].get("extra_info", {}), b.get("extra_info", {})
+        memory = (peak_mb(a_info), peak_mb(b_info))
         recorded = None if None in memory else memory
-        ratio = None if recorded is None or recorded[0] <= 0 else recorded[1] / recorded[0]
-        checked = tuple(k for k in RESULT_KEYS if k in a["extra_info"])
-        differ = tuple(k for k in checked if a["extra_info"][k] != b["extra_info"].get(k))
-        time = b["stats"]["median"] / a["stats"]["median"]
+        ratio = None if recorded is None else recorded[1] / max(recorded[0], MEMORY_SLACK_MB)
+        checked = tuple(k for k in RESULT_KEYS if k in a_info)
+        differ = tuple(k for k in checked if a_info[k] != b_info.get(k))
+        time = b["stats"]["median"] / base[name]["stats"]["median"]
         out.append(Change(name, time, ratio, recorded, checked, differ))
     return out
 

@@ -23,7 +23,7 @@ from bench.keys import code_version, git_commit
 from bench.presets import BenchPreset
 from bench.results import write_text_atomic
 from bench.runlog import FILE as RUNS_FILE
-from bench.runlog import SHOWN, describe
+from bench.runlog import describe, recent
 from bench.signals import NOISE_PROXY
 from bench.values import SpecValues
 
@@ -170,11 +170,11 @@ def _header(
 
 
 def _recent_runs(history: list[dict[str, Any]]) -> tuple[str, list[str]]:
-    """``(title, lines)``: the newest ``SHOWN`` recorded runs of the report's plan (``bench.runlog``),
-    oldest first, under a title that says how many older ones it leaves out."""
-    shown = history[-SHOWN:]
-    older = f" ({len(history) - len(shown)} older not shown)" if len(history) > len(shown) else ""
-    return f"runs of these cells recorded in the workspace ({RUNS_FILE}){older}", [describe(r) for r in shown]
+    """``(title, lines)``: the recorded runs of the report's plan that it shows (``bench.runlog.recent``),
+    under a title that says how many others it leaves out."""
+    shown = recent(history)
+    left = f" ({len(history) - len(shown)} more not shown)" if len(history) > len(shown) else ""
+    return f"runs of these cells recorded in the workspace ({RUNS_FILE}){left}", [describe(r) for r in shown]
 
 
 def history_markdown(history: list[dict[str, Any]]) -> list[str]:

@@ -2,7 +2,10 @@
 
 A report rendered later from cached cells (``--no-run``) has no run of its own; it lists the runs of its
 plan (same keys digest, so the same cells) that the workspace recorded, so a cold run's wall clock and
-its machine stay with the outputs built from its cells instead of being typed into prose.
+its machine stay with the outputs built from its cells instead of being typed into prose. A run is
+recorded once its cells are done, before its outputs are written, so its own report lists it too. An
+interrupted run is not recorded (the run that resumes it is, as ``resumed``), nor is a ``--no-run``
+render; a report of the full plan does not list runs of a ``--tables`` subset (another digest).
 ``<workspace>/runs.json``: ``{"runs": [entry, ...]}``, oldest first, rewritten atomically per run.
 """
 
@@ -19,6 +22,8 @@ from bench.results import write_json_atomic
 
 FILE = "runs.json"
 SHOWN = 5  # a report lists the newest runs of its plan, and says how many older ones it left out
+COUNTS = ("builds_run", "builds_reused", "evals_run", "evals_reused")
+FIELDS = ("finished", "preset", "keys_digest", "git", "machine", "jobs", *COUNTS, "failures", "seconds")
 
 
 def runs_path(workspace_root: Path) -> Path:
@@ -26,7 +31,8 @@ def runs_path(workspace_root: Path) -> Path:
 
 
 def read_runs(workspace_root: Path) -> list[dict[str, Any]]:
-    """Every recorded run, oldest first (none when the file does not exist)."""
+    """Every recorded run, oldest first (none when the file does not exist); ``ValueError`` naming the
+    file and the entry when one is not a run of this format."""
     path = runs_path(workspace_root)
     if not path.is_file():
         return []
@@ -36,6 +42,11 @@ def read_runs(workspace_root: Path) -> list[dict[str, Any]]:
         raise ValueError(f"{path}: not a run record ({{'runs': [...]}}): {err}") from err
     if not isinstance(runs, list):
         raise ValueError(f"{path}: 'runs' must be a list, got {type(runs).__name__}")
+    for i, entry in enumerate(runs):
+        missing = [k for k in FIELDS if k not in entry] if isinstance(entry, dict) else list(FIELDS)
+        if missing or not isinstance(entry["git"], dict):
+            why = f"lacks {missing}" if missing else "'git' must be {'commit', 'dirty'}"
+            raise ValueError(f"{path}: runs[{i}] {why}; move the file aside to start a new record")
     return runs
 
 
@@ -48,9 +59,10 @@ def record_run(
     jobs: int | None,
     seconds: float,
 ) -> dict[str, Any]:
-    """Append one finished ``bench.all`` run of the plan ``identity`` (``Plan.identity``); ``run``: the
-    runner's counts (``bench.all``'s ``run`` dict); ``jobs``: the local executor's parallel tasks (None
-    for the others); ``seconds``: the command's wall clock, outputs included. Returns the entry."""
+    """Append one ``bench.all`` run of the plan ``identity`` (``Plan.identity``) whose cells are done;
+    ``run``: the runner's counts (``bench.all``'s ``run`` dict); ``jobs``: the local executor's parallel
+    tasks (None for the others); ``seconds``: the command's wall clock so far (planning and cells, before
+    the outputs). Returns the entry."""
     entry = {
         "finished": time.strftime("%Y-%m-%d %H:%M:%S %z"),
         "preset": preset,
@@ -60,7 +72,7 @@ def record_run(
         "machine": machine_line(),
         "executor": executor,
         "jobs": jobs,
-        **{k: run[k] for k in ("builds_run", "builds_reused", "evals_run", "evals_reused")},
+        **{k: run[k] for k in COUNTS},
         "failures": len(run["failures"]),
         "cells_seconds": round(run["seconds"], 1),
         "seconds": round(seconds, 1),
@@ -71,7 +83,7 @@ def record_run(
 
 def runs_of(workspace_root: Path, keys_digest: str) -> list[dict[str, Any]]:
     """The recorded runs of the plan whose keys digest is ``keys_digest``, oldest first."""
-    return [r for r in read_runs(workspace_root) if r.get("keys_digest") == keys_digest]
+    return [r for r in read_runs(workspace_root) if r["keys_digest"] == keys_digest]
 
 
 def cache_state(entry: dict[str, Any]) -> str:
@@ -81,17 +93,27 @@ def cache_state(entry: dict[str, Any]) -> str:
     return "warm" if ran == 0 else "cold" if reused == 0 else "resumed"
 
 
+def recent(history: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The newest ``SHOWN`` runs of ``history``, oldest first; the newest run that computed cells (cold or
+    resumed) stays among them however many warm runs came after it."""
+    shown = history[-SHOWN:]
+    computed = [r for r in history if cache_state(r) != "warm"]
+    if computed and computed[-1] not in shown:
+        shown = [computed[-1], *shown[1:]]
+    return shown
+
+
 def describe(entry: dict[str, Any]) -> str:
     """One line: ``2026-12-02 07:37 cold: 89 builds + 97 evaluations run, 0 reused, 44.7 min (2 jobs,
     <cpu>, git 680b0dc)``."""
     minutes = entry["seconds"] / 60
     took = f"{minutes:.1f} min" if minutes >= 1 else f"{entry['seconds']:.0f} s"
     failed = f", {entry['failures']} failed" if entry["failures"] else ""
-    git = entry.get("git") or {}
+    git = entry["git"]
     version = (git.get("commit") or "?")[:7] + (
         " with uncommitted changes to moegs" if git.get("dirty") else ""
     )
-    how = f"{entry['jobs']} jobs" if entry.get("jobs") else entry.get("executor", "?")
+    how = f"{entry['jobs']} jobs" if entry["jobs"] else entry.get("executor", "?")
     return (
         f"{entry['finished'][:16]} {cache_state(entry)}: {entry['builds_run']} builds + {entry['evals_run']} "
         f"evaluations run, {entry['builds_reused'] + entry['evals_reused']} reused{failed}, {took} "

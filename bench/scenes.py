@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from bench.datasets import get_dataset
 from bench.presets import BenchPreset
+from bench.results import write_text_atomic
 
 
 @dataclass(frozen=True)
@@ -118,10 +118,7 @@ def folder_hash(folder: Path, cache_file: Path | None = None) -> str:
     digest = h.hexdigest()
     if cache_file is not None:
         cache[str(folder)] = {"signature": sig, "sha256": digest}
-        cache_file.parent.mkdir(parents=True, exist_ok=True)
-        tmp = cache_file.with_suffix(f".tmp{os.getpid()}")
-        tmp.write_text(json.dumps(cache, indent=1))
-        tmp.replace(cache_file)
+        write_text_atomic(cache_file, json.dumps(cache, indent=1))
     return digest
 
 

@@ -71,6 +71,32 @@ def test_cases_of_one_run_only_are_listed_not_judged(tmp_path, capsys):
     assert "only in the base run: gone" in out and "only in the new run: added" in out
 
 
+def test_memory_from_nothing_and_cases_without_extra_info(tmp_path):
+    base = read_run(_run(tmp_path / "a.json", peak=0.0))
+    new = read_run(_run(tmp_path / "b.json", peak=500.0))
+    for run in (base, new):
+        del run[TRAIN]["extra_info"]
+    [render, train] = compare(base, new)
+    assert render.memory_mb == (0.0, 500.0) and render.memory == 250.0  # 500 MB over the 2 MB slack
+    assert train.memory is None and train.checked == ()
+    assert regressions([render, train], time=0.25, memory=0.10) == [
+        f"{RENDER}: peak memory 0 -> 500 MB (x250.00, limit x1.10)"
+    ]
+
+
+def test_the_newest_machine_folder_is_compared(tmp_path):
+    """pytest-benchmark numbers each machine's runs on its own: a new folder starts again at 0001."""
+    old, new = (tmp_path / name for name in ("Linux-CPython-3.11-64bit", "Linux-CPython-3.12-64bit"))
+    for folder, count in ((old, 5), (new, 2)):
+        folder.mkdir()
+        for i in range(1, count + 1):
+            _run(folder / f"{i:04d}_abc.json")
+    assert newest_runs(tmp_path) == [new / "0001_abc.json", new / "0002_abc.json"]
+    (new / "0001_abc.json").unlink()
+    with pytest.raises(ValueError, match=r"Linux-CPython-3\.12-64bit: 1 autosaved run\(s\), need 2"):
+        newest_runs(tmp_path)
+
+
 def test_default_is_the_two_newest_autosaved_runs(tmp_path, monkeypatch):
     machine = tmp_path / ".benchmarks" / "Linux-CPython-3.11-64bit"
     machine.mkdir(parents=True)
@@ -87,5 +113,8 @@ def test_bad_input_names_the_file(tmp_path, capsys):
     assert f"{tmp_path / 'bad.json'}: not a pytest-benchmark JSON" in capsys.readouterr().err
     assert main([str(tmp_path / "missing.json"), str(tmp_path / "bad.json")]) == 2
     assert "missing.json: no such benchmark JSON" in capsys.readouterr().err
+    _run(tmp_path / "zero.json", median_render=0.0)
+    assert main([str(tmp_path / "zero.json"), str(tmp_path / "zero.json")]) == 2
+    assert f"zero.json: median time not positive for ['{RENDER}']" in capsys.readouterr().err
     with pytest.raises(ValueError, match=r"0 autosaved run\(s\), need 2"):
         newest_runs(tmp_path / "empty")

@@ -10,7 +10,16 @@ import pytest
 
 from bench.claims import FAILED, HELD, NA, better, monotone, order
 from bench.keys import code_version, digest
-from bench.results import SCHEMA, ResultError, load_valid, read_result, write_json_atomic, write_result
+from bench.results import (
+    SCHEMA,
+    ResultError,
+    atomic_path,
+    load_valid,
+    read_result,
+    write_json_atomic,
+    write_result,
+    write_text_atomic,
+)
 from bench.store import Workspace
 from bench.tasks import Task
 
@@ -90,6 +99,17 @@ def test_bad_result_file_names_the_file(tmp_path, content, message):
     with pytest.raises(ResultError, match=message) as err:
         load_valid(path, task)
     assert str(path) in str(err.value)
+
+
+def test_an_interrupted_write_leaves_the_old_file_and_no_temporary(tmp_path):
+    path = tmp_path / "out" / "REPORT.md"
+    write_text_atomic(path, "old\n")
+    with pytest.raises(KeyboardInterrupt), atomic_path(path) as tmp:
+        tmp.write_text("half")
+        raise KeyboardInterrupt
+    assert path.read_text() == "old\n" and sorted(p.name for p in path.parent.iterdir()) == ["REPORT.md"]
+    write_text_atomic(path, "new\n")
+    assert path.read_text() == "new\n" and len(list(path.parent.iterdir())) == 1
 
 
 def test_result_key_must_match_file(tmp_path):

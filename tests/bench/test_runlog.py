@@ -1,6 +1,6 @@
-"""``bench.runlog``: every ``bench.all`` run is recorded in its workspace, and a report rendered later
-from the cached cells (``--no-run``) lists the runs of its plan, so a cold run's wall clock stays with
-the outputs built from its cells."""
+"""``bench.runlog``: every ``bench.all`` run is recorded in its workspace, and a report (its own and any
+rendered later from the cached cells with ``--no-run``) lists the runs of its plan, so a cold run's wall
+clock stays with the outputs built from its cells."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 
 import bench.runner
 from bench.all import main
-from bench.runlog import SHOWN, cache_state, describe, read_runs, record_run, runs_of, runs_path
+from bench.runlog import SHOWN, cache_state, describe, read_runs, recent, record_run, runs_of, runs_path
 from bench.runner import RunSummary
 
 COUNTS = {
@@ -22,6 +22,7 @@ COUNTS = {
     "failures": [],
     "seconds": 12.34,
 }
+WARM = {"builds_run": 0, "evals_run": 0, "builds_reused": 3, "evals_reused": 2}
 
 
 def _record(root, digest="d1", **counts):
@@ -33,16 +34,16 @@ def test_runs_are_appended_and_filtered_by_plan(tmp_path):
     assert read_runs(tmp_path) == []
     first = _record(tmp_path)
     _record(tmp_path, digest="other")
-    warm = _record(tmp_path, builds_run=0, evals_run=0, builds_reused=3, evals_reused=2, seconds=1.0)
+    warm = _record(tmp_path, **WARM, seconds=1.0)
     assert [r["keys_digest"] for r in read_runs(tmp_path)] == ["d1", "other", "d1"]
     assert runs_of(tmp_path, "d1") == [first, warm]
     assert first["seconds"] == 75.0 and first["cells_seconds"] == 12.3 and first["jobs"] == 2
-    assert first["machine"] and first["specs"] == ["tab17"]
+    assert first["machine"] and first["specs"] == ["tab17"] and set(first["git"]) == {"commit", "dirty"}
 
 
 def test_cache_state_and_description(tmp_path):
     cold = _record(tmp_path)
-    warm = _record(tmp_path, builds_run=0, evals_run=0, builds_reused=3, evals_reused=2)
+    warm = _record(tmp_path, **WARM)
     resumed = _record(tmp_path, builds_run=1, builds_reused=2, failures=["x"])
     assert [cache_state(e) for e in (cold, warm, resumed)] == ["cold", "warm", "resumed"]
     line = describe(cold)
@@ -53,36 +54,80 @@ def test_cache_state_and_description(tmp_path):
     assert describe(dirty).endswith(", git 0123456 with uncommitted changes to moegs)")
 
 
-def test_a_damaged_record_names_its_file(tmp_path):
-    runs_path(tmp_path).write_text("{not json", encoding="utf-8")
-    with pytest.raises(ValueError, match=r"runs\.json: not a run record"):
+def test_warm_reruns_do_not_hide_the_run_that_computed_the_cells(tmp_path):
+    cold = _record(tmp_path)
+    warms = [_record(tmp_path, **WARM) for _ in range(SHOWN + 2)]
+    shown = recent(read_runs(tmp_path))
+    assert len(shown) == SHOWN and shown[0] == cold and shown[1:] == warms[-(SHOWN - 1) :]
+    assert recent(read_runs(tmp_path)[:3]) == [cold, *warms[:2]]
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("{not json", r"runs\.json: not a run record"),
+        ('{"runs": {}}', r"runs\.json: 'runs' must be a list"),
+        ('{"runs": [{"finished": "x"}]}', r"runs\.json: runs\[0\] lacks \['preset', "),
+    ],
+)
+def test_a_damaged_record_names_its_file_and_entry(tmp_path, content, message):
+    runs_path(tmp_path).write_text(content, encoding="utf-8")
+    with pytest.raises(ValueError, match=message):
         read_runs(tmp_path)
 
 
-def test_a_later_render_lists_the_runs_of_its_plan(tmp_path, monkeypatch):
-    """``bench.all`` records its run after writing the report; ``--no-run`` renders list it, newest
-    ``SHOWN`` first-to-last."""
-    ran = RunSummary(builds_run=4, evals_run=3, seconds=30.0)
-    monkeypatch.setattr(bench.runner, "execute", lambda *a, **k: ran)
-    ws, out = tmp_path / "ws", tmp_path / "out"
-    args = ["--tables", "17", "--preset", "tiny", "--workspace", str(ws), "--out", str(out), "--no-progress"]
-    assert main(args) == 0
-    [entry] = read_runs(ws)
-    assert (entry["builds_run"], entry["evals_run"], entry["cells_seconds"]) == (4, 3, 30.0)
-    report = out / "reports" / "subsets" / "tab17" / "reports"
-    assert json.loads((report / "summary.json").read_text())["header"]["history"] == []
+def test_an_entry_of_another_format_is_refused(tmp_path):
+    entry = _record(tmp_path)
+    runs_path(tmp_path).write_text(json.dumps({"runs": [entry, {**entry, "git": "680b0dc"}]}))
+    with pytest.raises(ValueError, match=r"runs\[1\] 'git' must be"):
+        read_runs(tmp_path)
 
-    assert main([*args, "--no-run"]) == 0
-    assert len(read_runs(ws)) == 1, "a --no-run render is not a run"
+
+def _tab17(tmp_path, *extra):
+    ws, out = tmp_path / "ws", tmp_path / "out"
+    return [
+        "--tables",
+        "17",
+        "--preset",
+        "tiny",
+        "--workspace",
+        str(ws),
+        "--out",
+        str(out),
+        "--no-progress",
+        *extra,
+    ]
+
+
+def test_a_damaged_record_stops_bench_all_before_any_cell(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(bench.runner, "execute", lambda *a, **k: pytest.fail("ran cells"))
+    (tmp_path / "ws").mkdir()
+    runs_path(tmp_path / "ws").write_text("{not json")
+    assert main(_tab17(tmp_path)) == 2
+    assert f"error: {runs_path(tmp_path / 'ws')}: not a run record" in capsys.readouterr().err
+
+
+def test_reports_list_the_runs_of_their_plan(tmp_path, monkeypatch):
+    """``bench.all`` records its run before writing its outputs; its report and every later ``--no-run``
+    render list it."""
+    monkeypatch.setattr(
+        bench.runner, "execute", lambda *a, **k: RunSummary(builds_run=4, evals_run=3, seconds=30)
+    )
+    report = tmp_path / "out" / "reports" / "subsets" / "tab17" / "reports"
+    assert main(_tab17(tmp_path)) == 0
+    [entry] = read_runs(tmp_path / "ws")
+    assert (entry["builds_run"], entry["evals_run"], entry["cells_seconds"]) == (4, 3, 30.0)
+    assert json.loads((report / "summary.json").read_text())["header"]["history"] == [entry]
+
+    assert main(_tab17(tmp_path, "--no-run")) == 0
+    assert len(read_runs(tmp_path / "ws")) == 1, "a --no-run render is not a run"
     header = json.loads((report / "summary.json").read_text())["header"]
     assert header["history"] == [entry] and header["cells"]["keys_digest"] == entry["keys_digest"]
     assert f"  - {describe(entry)}" in (report / "REPORT.md").read_text()
     assert f"<li>{html.escape(describe(entry))}</li>" in (report / "REPORT.html").read_text()
 
     for _ in range(SHOWN):
-        assert main(args) == 0
-    assert main([*args, "--no-run"]) == 0
-    md = (report / "REPORT.md").read_text()
-    assert "(1 older not shown)" in md and md.count(" cold: 4 builds") == SHOWN
-    page = (report / "REPORT.html").read_text()
-    assert "(1 older not shown)" in page and page.count(" cold: 4 builds") == SHOWN
+        assert main(_tab17(tmp_path)) == 0
+    for page in ("REPORT.md", "REPORT.html"):
+        text = (report / page).read_text()
+        assert "(1 more not shown)" in text and text.count(" cold: 4 builds") == SHOWN

@@ -2,15 +2,14 @@
 
 ``trained_expert("static", "dnerf:mutant", "quick")`` trains once and keeps the run under
 ``<cache_root>/test-runs/<expert>_<scene>_<preset>_<code hash>/`` (``MOEGS_CACHE`` or ``.cache/``);
-later calls (in this or a later session) reload the checkpoint. The code hash covers every library
-source (``moegs/**/*.py`` and the C kernel's ``.c``/``.h``), so any library change retrains. An
-interrupted run resumes from its last checkpoint. Scenes whose data is absent skip the calling test
+later calls (in this or a later session) reload the checkpoint. The code hash is the library's code
+version (every module and the C kernel; docstrings and comments aside), so any library change retrains.
+An interrupted run resumes from its last checkpoint. Scenes whose data is absent skip the calling test
 with the reason.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass
 from functools import cache
@@ -18,13 +17,11 @@ from pathlib import Path
 
 import pytest
 
+from bench.keys import code_version
 from moegs.data.scene import Scene
 from moegs.experts import list_experts
 from moegs.experts.base import Expert
 from moegs.paths import cache_root
-
-_PACKAGE = Path(__file__).resolve().parents[2] / "moegs"
-_SOURCES = (".py", ".c", ".h")  # the C kernel trains every CPU run (moegs.kernels)
 
 
 def builtin_experts() -> list[str]:
@@ -42,16 +39,10 @@ class TrainedRun:
     path: Path
 
 
-@cache
 def code_hash() -> str:
-    """12 hex digits over the paths and contents of the library's sources (``_SOURCES``)."""
-    digest = hashlib.sha256()
-    for path in sorted(
-        p for p in _PACKAGE.rglob("*") if p.suffix in _SOURCES and "__pycache__" not in p.parts
-    ):
-        digest.update(str(path.relative_to(_PACKAGE)).encode())
-        digest.update(path.read_bytes())
-    return digest.hexdigest()[:12]
+    """12 hex digits of the library's code version (``bench.keys.code_version``: every ``moegs`` module's
+    syntax tree without docstrings, and the C kernel's sources)."""
+    return code_version()[:12]
 
 
 def run_dir(name: str, scene: str, preset: str) -> Path:
