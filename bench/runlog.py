@@ -93,13 +93,18 @@ def cache_state(entry: dict[str, Any]) -> str:
     return "warm" if ran == 0 else "cold" if reused == 0 else "resumed"
 
 
+def last_computing(history: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The newest run of ``history`` that computed cells (cold or resumed), or None."""
+    return next((r for r in reversed(history) if cache_state(r) != "warm"), None)
+
+
 def recent(history: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The newest ``SHOWN`` runs of ``history``, oldest first; the newest run that computed cells (cold or
-    resumed) stays among them however many warm runs came after it."""
+    """The newest ``SHOWN`` runs of ``history``, oldest first; the newest run that computed cells
+    (``last_computing``) stays among them however many warm runs came after it."""
     shown = history[-SHOWN:]
-    computed = [r for r in history if cache_state(r) != "warm"]
-    if computed and computed[-1] not in shown:
-        shown = [computed[-1], *shown[1:]]
+    computing = last_computing(history)
+    if computing is not None and computing not in shown:
+        shown = [computing, *shown[1:]]
     return shown
 
 

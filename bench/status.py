@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.readme import paper_name, update_readme
+from bench.runlog import cache_state, last_computing
 from moegs.io import read_json
 
 QUICK = Path("reports") / "summary.json"
@@ -111,6 +112,15 @@ def real_scene_rows(standard: dict[str, Any], quick: dict[str, Any]) -> list[str
     return out
 
 
+def wall_clock_cell(summary: dict[str, Any]) -> str:
+    """The recorded wall clock of the run that computed the cells (``bench.runlog``), or why there is none."""
+    run = last_computing(summary["header"].get("history", []))
+    if run is None:  # rendered before bench.runlog existed, or the workspace recorded only warm runs
+        return "not recorded"
+    how = f"{run['jobs']} jobs" if run["jobs"] else run["executor"]
+    return f"{run['seconds'] / 60:.1f} min {cache_state(run)} ({how}, {run['machine']})"
+
+
 def _provenance(summary: dict[str, Any]) -> str:
     git = summary["header"].get("git", {}).get("commit", "unknown")[:7]
     return f"git {git}, library `{summary['header'].get('moegs_code_version', 'unknown')[:8]}`"
@@ -124,6 +134,8 @@ def section(quick: dict[str, Any], standard: dict[str, Any]) -> str:
         f"| the paper's claims on our numbers | {claims_cell(quick)} | {claims_cell(standard)} |",
         f"| cells (single-process minutes) | {quick['compute']['minutes']:.1f} | "
         f"{standard['compute']['minutes']:.1f} |",
+        f"| wall clock of the run that computed them | {wall_clock_cell(quick)} | "
+        f"{wall_clock_cell(standard)} |",
         "",
         f"Motion at quick ({MOTION_SCENE}, {MOTION_RECIPE} recipes; issue 12's floors, dynamic region):",
         "",

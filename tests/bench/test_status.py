@@ -15,6 +15,7 @@ from bench.status import (
     real_scene_rows,
     routing_cell,
     section,
+    wall_clock_cell,
 )
 from moegs.io import read_json
 
@@ -82,6 +83,18 @@ def test_counts_floors_and_routing():
     cell = routing_cell(quick)
     assert "coherence 0.55 (≥ 0.6: missed)" in cell and "STG 75% / 10%" in cell
     assert routing_cell(_summary([])) == "not in this run"
+
+
+def test_wall_clock_is_the_recorded_run_that_computed_the_cells():
+    run = {"seconds": 2682.0, "jobs": 2, "executor": "local", "machine": "Intel Xeon, 2 logical CPUs"}
+    cold = {**run, "builds_run": 89, "evals_run": 97, "builds_reused": 0, "evals_reused": 0}
+    warm = {**run, "seconds": 21.0, "builds_run": 0, "evals_run": 0, "builds_reused": 89, "evals_reused": 97}
+    summary = _summary([])
+    assert wall_clock_cell(summary) == "not recorded"
+    summary["header"]["history"] = [cold, warm]
+    assert wall_clock_cell(summary) == "44.7 min cold (2 jobs, Intel Xeon, 2 logical CPUs)"
+    summary["header"]["history"] = [warm]
+    assert wall_clock_cell(summary) == "not recorded"
 
 
 def test_real_scene_rows_pair_standard_with_quick():
