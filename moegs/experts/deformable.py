@@ -124,7 +124,7 @@ class DeformableConfig(StaticConfig):
     """Hard-coded 5 in ``GaussianModel`` and ``DeformModel`` (the scene extent is ignored)."""
     scales_lr: float = 5e-3
     """``scaling_lr`` 0.001 (``arguments/__init__.py:90``) times ``spatial_lr_scale`` 5
-    (``scene/gaussian_model.py:124``)."""
+    (set at ``scene/gaussian_model.py:117``, applied at ``:124``)."""
     strategy: Strategy = field(default_factory=ADCStrategy)
     """Densification of the ``paper`` branch (vanilla ‖∂L/∂μ2D‖, τ 2e-4, 500-15k every 100, reset 3000);
     the ``main`` branch's AbsGS gradient (τ 7e-4) is not reproduced."""

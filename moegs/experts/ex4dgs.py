@@ -340,8 +340,9 @@ class Ex4DGSConfig(ExpertConfig):
 
     @classmethod
     def paper_technicolor(cls) -> Ex4DGSConfig:
-        """The values all ``configs/techni/*.json`` share: ``time_pad`` 3, temporal-centre lr 1e-3, 3777
-        iterations between extractions, near plane 0.01. Deviation: the original normalises
+        """The values all ``configs/techni/*.json`` share: ``time_pad`` 3, temporal-centre lr 1e-3, near
+        plane 0.01; and 3777 iterations between extractions, which Fabien, Painter and Theater use
+        (Birthday 1777 and Train 4777: ``SCENE_OVERRIDES``). Deviation: the original normalises
         Technicolor scenes by the camera radius (``scene/dataset_readers.py:484-509``; absolute-unit rates
         such as the drift lr differ)."""
         return cls(time_pad=3, centers_lr=1e-3, extract_every=3777, near=0.01)
@@ -964,7 +965,7 @@ class Ex4DGSExpert(Expert):
         for key, value in values.items():
             s[key].data[idx] = value
         s["dynamic"][idx] = True
-        for key in ("err_min", "err_min_time"):  # new dynamic Gaussians start unseen (cgm:1174-1227)
+        for key in ("err_min", "err_min_time"):  # new dynamic Gaussians start unseen (cgm:1222-1223)
             s[key].data[idx] = FRESH[key]
 
     @torch.no_grad()

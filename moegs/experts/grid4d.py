@@ -174,10 +174,11 @@ class Grid4DConfig(StaticConfig):
     """``position_lr_max_steps``."""
     scales_lr: float = 5e-3
     """``scaling_lr`` 0.001 (``arguments/__init__.py:120``) times ``spatial_lr_scale`` 5
-    (``scene/gaussian_model.py:124``)."""
+    (set at ``scene/gaussian_model.py:117``, applied at ``:124``)."""
     strategy: Strategy = field(default_factory=lambda: ADCStrategy(prune_after_reset_only=True))
     """3DGS densify-and-prune: 500-15k every 100, τ 2e-4, opacity reset every 3000, no pruning before the
-    first reset interval (``scene/gaussian_model.py:374-380``)."""
+    first reset interval (``train.py:154`` passes no size threshold until then, and
+    ``scene/gaussian_model.py:374-380`` prunes only with one)."""
     train: TrainConfig = field(default_factory=lambda: TrainConfig(iterations=50_000, lambda_dssim=0.2))
 
     DATASET_PRESETS: ClassVar[dict[str, DatasetPreset]] = {

@@ -169,7 +169,7 @@ class STGConfig(ExpertConfig):
         "technicolor": DatasetPreset("paper-technicolor", "configs/techni_full/*.json"),
     }
     BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "black"}
-    """Black (``arguments/__init__.py:69``; ``train.py:91``)."""
+    """Black (``thirdparty/gaussian_splatting/arguments/__init__.py:69``; ``train.py:91``)."""
     SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
         # densify mode 2 (configs/n3d_full/<scene>.json:4-7; helper_train.py:233-256): opacity pruning up to
         # 8900, the ω mask only to 8999, nothing after 9000; evaluated at test_iteration (:6)

@@ -8,7 +8,7 @@ Written from ``oppo-us-research/SpacetimeGaussians`` @ 427abfc (``train.py:130-1
    initial model (``far_depths``);
 2. **collect** (from ``guided_from``): the SSIM of each camera's first render;
 3. **select**: the two cameras with the lowest SSIM below 0.91 (none when fewer than two are);
-4. **trigger**: when the last view of a step is a selected camera, at least ``gap`` iterations after the
+4. **trigger**: when the last view of a step is a selected camera, more than ``gap`` iterations after the
    previous event, and its SSIM is below 0.88: flag 16x16 patches where more than 85 % of the pixels are
    among the 40 % worst (normalised absolute error), take their pixels with an odd row or column, away
    from a 10 % border, and add one Gaussian per pixel at ``far_depth x r`` (+-5 % jitter) for each ratio
