@@ -31,6 +31,7 @@ from pathlib import Path
 
 from bench.presets import PRESET_ENV, PRESETS, default_preset, get_preset
 from bench.registry import get_spec, list_specs, parse_selection
+from moegs.cli_types import non_negative_int, positive_float, positive_int
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -60,11 +61,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--jobs",
-        type=int,
+        type=positive_int,
         default=os.cpu_count() or 1,
         help="parallel tasks for the local executor (default: one per CPU core, 1 thread each)",
     )
-    p.add_argument("--timeout", type=float, default=None, help="seconds per task (local executor)")
+    p.add_argument("--timeout", type=positive_float, default=None, help="seconds per task (local executor)")
     p.add_argument(
         "--workspace",
         type=Path,
@@ -93,9 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--list", action="store_true", help="list the specs and exit (no torch import)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--slurm-partition", default=None)
-    p.add_argument("--slurm-time", type=int, default=240, help="minutes per task on Slurm")
-    p.add_argument("--slurm-gpus", type=int, default=None, help="GPUs per task on Slurm")
-    p.add_argument("--slurm-cpus", type=int, default=None, help="CPUs per task on Slurm")
+    p.add_argument("--slurm-time", type=positive_int, default=240, help="minutes per task on Slurm")
+    p.add_argument("--slurm-gpus", type=non_negative_int, default=None, help="GPUs per task on Slurm")
+    p.add_argument("--slurm-cpus", type=positive_int, default=None, help="CPUs per task on Slurm")
     return p
 
 
@@ -219,6 +220,9 @@ def main(argv: list[str] | None = None) -> int:
 
     workspace = Workspace(args.workspace)
     try:
+        for flag, folder in (("--workspace", workspace.root), ("--out", args.out)):
+            if folder.exists() and not folder.is_dir():
+                raise ValueError(f"{flag} {folder} is a file; expected a folder (created when missing)")
         read_runs(workspace.root)  # a damaged record stops the command now, not after the cells
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -27,6 +27,7 @@ def _checked(parse: Callable[[str], T], ok: Callable[[T], bool], expected: str) 
 
 positive_int = _checked(int, lambda v: v >= 1, "a positive integer")
 non_negative_int = _checked(int, lambda v: v >= 0, "an integer >= 0")
+positive_float = _checked(float, lambda v: v > 0, "a positive number")
 seed = _checked(int, lambda v: 0 <= v < 2**63, "an integer seed in [0, 2**63)")
 unit_time = _checked(float, lambda v: 0.0 <= v <= 1.0, "a time in [0, 1]")
 unit_scale = _checked(float, lambda v: 0.0 < v <= 1.0, "a scale in (0, 1]")

@@ -1,0 +1,44 @@
+"""``python -m bench.all`` refuses bad arguments before any work: one message naming the argument."""
+
+from __future__ import annotations
+
+import pytest
+
+from bench.all import main
+
+TAB17 = ["--quick", "--tables", "17", "--no-run", "--no-progress"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--jobs", "0"], "argument --jobs: expected a positive integer, got '0'"),
+        (["--jobs", "two"], "argument --jobs: expected a positive integer, got 'two'"),
+        (["--timeout", "-1"], "argument --timeout: expected a positive number, got '-1'"),
+        (["--timeout", "nan"], "argument --timeout: expected a positive number, got 'nan'"),
+        (["--slurm-time", "0"], "argument --slurm-time: expected a positive integer, got '0'"),
+        (["--slurm-gpus", "-1"], "argument --slurm-gpus: expected an integer >= 0, got '-1'"),
+        (["--slurm-cpus", "0"], "argument --slurm-cpus: expected a positive integer, got '0'"),
+        (["--preset", "huge"], "argument --preset: invalid choice: 'huge'"),
+    ],
+)
+def test_bad_values_are_rejected_by_the_parser(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main([*TAB17, *argv])
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag", ["--workspace", "--out"])
+def test_a_file_where_a_folder_belongs_is_named(flag, tmp_path, capsys):
+    (tmp_path / "a-file").write_text("x")
+    other = "--out" if flag == "--workspace" else "--workspace"
+    assert main([*TAB17, flag, str(tmp_path / "a-file"), other, str(tmp_path / "ok")]) == 2
+    assert f"error: {flag} {tmp_path / 'a-file'} is a file; expected a folder" in capsys.readouterr().err
+
+
+def test_unknown_tables_and_candidates_list_the_valid_names(tmp_path, capsys):
+    out = ["--workspace", str(tmp_path / "ws"), "--out", str(tmp_path / "out")]
+    assert main(["--quick", "--tables", "42", *out]) == 2
+    assert "unknown table/figure id '42'; valid ids: tab01, tab02" in capsys.readouterr().err
+    assert main(["--quick", "--tables", "10", "--candidate", "nope", "--no-run", *out]) == 2
+    assert "--candidate: unknown expert 'nope'; registered experts: deformable" in capsys.readouterr().err
