@@ -25,6 +25,7 @@ from pathlib import Path
 import torch
 
 from bench.results import write_json_atomic
+from moegs.cli_types import non_negative_int, positive_float, positive_int
 from moegs.data import load_scene
 from moegs.data.scene import PointCloud, Scene
 from moegs.experts import get_expert_class, list_experts
@@ -191,18 +192,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scene", default="synthetic:n3v_like")
     p.add_argument("--experts", help="comma-separated expert names (default: every registered expert)")
     p.add_argument("--moe", default=",".join(DEFAULT_MOE), help="the K experts MoE-GS blends")
-    p.add_argument("--views", type=int, default=4, help="test views timed (default 4)")
-    p.add_argument("--warmup", type=int, default=3)
-    p.add_argument("--repeats", type=int, default=10)
+    p.add_argument("--views", type=positive_int, default=4, help="test views timed (default 4)")
+    p.add_argument("--warmup", type=non_negative_int, default=3)
+    p.add_argument("--repeats", type=positive_int, default=10)
     p.add_argument(
         "--gaussians",
-        type=int,
+        type=positive_int,
         help="resample the scene's initial cloud to this many points and start every expert from all of "
         "them (the paper's scenes hold a few hundred thousand Gaussians per expert)",
     )
     p.add_argument(
         "--scale",
-        type=float,
+        type=positive_float,
         default=1.0,
         help="scale the test cameras (image size and focal length); the N3V stand-in's 128x96 x 10.5 is "
         "about N3V's 1352x1014",

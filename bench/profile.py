@@ -37,6 +37,9 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+from moegs.cli_types import non_negative_int, positive_int
+from moegs.cli_types import seed as seed_arg
+
 CATEGORIES = (
     "data",
     "fields",
@@ -274,9 +277,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--expert", required=True, help="registry name(s), comma-separated (moegs list)")
     parser.add_argument("--scene", required=True, help="<dataset>:<scene>, e.g. dnerf:mutant")
     parser.add_argument("--preset", default="quick", help="recipe preset (default quick)")
-    parser.add_argument("--steps", type=int, default=40, help="timed steps (default 40)")
-    parser.add_argument("--warmup", type=int, default=20, help="untimed steps first (default 20)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--steps", type=positive_int, default=40, help="timed steps (default 40)")
+    parser.add_argument(
+        "--warmup", type=non_negative_int, default=20, help="untimed steps first (default 20)"
+    )
+    parser.add_argument("--seed", type=seed_arg, default=0)
     parser.add_argument("--json", type=Path, help="also write the results here (a list, one per expert)")
     parser.add_argument("--readme", type=Path, help="rewrite this README's results:profile section")
     args = parser.parse_args(argv)

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bench.rasterizer import peak_mb
+from moegs.cli_types import non_negative_float
 
 SAVED = Path(".benchmarks")  # pytest-benchmark's --benchmark-autosave folder, under the working directory
 RESULT_KEYS = ("mean_loss",)  # extra_info values a benchmark computes, which a speed change must not move
@@ -138,8 +139,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "runs", nargs="*", type=Path, help="BASE.json NEW.json (default: the two newest autosaved)"
     )
-    p.add_argument("--time", type=float, default=0.25, help="allowed median slow-down (default 0.25 = 25%%)")
-    p.add_argument("--memory", type=float, default=0.10, help="allowed peak-memory growth (default 0.10)")
+    p.add_argument(
+        "--time", type=non_negative_float, default=0.25, help="allowed median slow-down (default 0.25 = 25%%)"
+    )
+    p.add_argument(
+        "--memory", type=non_negative_float, default=0.10, help="allowed peak-memory growth (default 0.10)"
+    )
     args = p.parse_args(argv)
     if len(args.runs) not in (0, 2):
         p.error(f"give two runs (BASE.json NEW.json) or none, got {len(args.runs)}")

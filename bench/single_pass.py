@@ -26,6 +26,7 @@ import torch
 from bench.raster_cases import case_renderer, run_once
 from bench.rasterizer import SINGLE_PASS_TARGET
 from bench.results import write_json_atomic
+from moegs.cli_types import non_negative_int, positive_int
 from moegs.metrics.speed import _describe as describe_device  # the suite's device wording
 
 DEFAULT_SIZES = ((5_000, 128), (100_000, 512), (300_000, 1024))
@@ -143,9 +144,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--sizes", default=",".join(f"{n}:{r}" for n, r in DEFAULT_SIZES), help="Gaussians:side per expert"
     )
-    p.add_argument("--experts", type=int, default=3)
-    p.add_argument("--rounds", type=int, default=50)
-    p.add_argument("--warmup", type=int, default=5)
+    p.add_argument("--experts", type=positive_int, default=3)
+    p.add_argument("--rounds", type=positive_int, default=50)
+    p.add_argument("--warmup", type=non_negative_int, default=5)
     p.add_argument(
         "--json",
         type=Path,

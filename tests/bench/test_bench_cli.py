@@ -1,4 +1,4 @@
-"""``python -m bench.all`` refuses bad arguments before any work: one message naming the argument."""
+"""The bench commands refuse bad arguments before any work: one message naming the argument."""
 
 from __future__ import annotations
 
@@ -42,3 +42,31 @@ def test_unknown_tables_and_candidates_list_the_valid_names(tmp_path, capsys):
     assert "unknown table/figure id '42'; valid ids: tab01, tab02" in capsys.readouterr().err
     assert main(["--quick", "--tables", "10", "--candidate", "nope", "--no-run", *out]) == 2
     assert "--candidate: unknown expert 'nope'; registered experts: deformable" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("module", "argv", "message"),
+    [
+        (
+            "profile",
+            ["--expert", "static", "--scene", "dnerf:mutant", "--steps", "0"],
+            "--steps: expected a positive integer",
+        ),
+        (
+            "profile",
+            ["--expert", "static", "--scene", "dnerf:mutant", "--seed", "-1"],
+            "--seed: expected an integer seed",
+        ),
+        ("single_pass", ["--rounds", "0"], "--rounds: expected a positive integer, got '0'"),
+        ("single_pass", ["--warmup", "-1"], "--warmup: expected an integer >= 0, got '-1'"),
+        ("moe_fps", ["--views", "0"], "--views: expected a positive integer, got '0'"),
+        ("moe_fps", ["--scale", "0"], "--scale: expected a positive number, got '0'"),
+        ("regress", ["--time", "-1"], "--time: expected a number >= 0, got '-1'"),
+    ],
+)
+def test_the_other_bench_tools_check_their_numbers(module, argv, message, capsys):
+    import importlib
+
+    with pytest.raises(SystemExit) as exit_info:
+        importlib.import_module(f"bench.{module}").main(argv)
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
