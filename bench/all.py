@@ -220,9 +220,12 @@ def main(argv: list[str] | None = None) -> int:
 
     workspace = Workspace(args.workspace)
     try:
-        for flag, folder in (("--workspace", workspace.root), ("--out", args.out)):
-            if folder.exists() and not folder.is_dir():
-                raise ValueError(f"{flag} {folder} is a file; expected a folder (created when missing)")
+        for flag, folder in (("--workspace", workspace.root), ("--out", args.out.resolve())):
+            existing = next(p for p in (folder, *folder.parents) if p.exists())
+            if not existing.is_dir():
+                raise ValueError(
+                    f"{flag} {folder}: {existing} is a file; expected a folder (created when missing)"
+                )
         read_runs(workspace.root)  # a damaged record stops the command now, not after the cells
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,7 +52,7 @@ def read_run(path: Path) -> dict[str, dict]:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
         run = {b["fullname"]: b for b in data["benchmarks"]}
-        bad = [name for name, b in run.items() if not b["stats"]["median"] > 0]
+        bad = [name for name, b in run.items() if not 0 < b["stats"]["median"] < math.inf]
     except FileNotFoundError:
         raise ValueError(f"{path}: no such benchmark JSON") from None
     except (json.JSONDecodeError, KeyError, TypeError) as err:
@@ -59,7 +60,7 @@ def read_run(path: Path) -> dict[str, dict]:
             f"{path}: not a pytest-benchmark JSON (needs benchmarks[].fullname and .stats.median): {err!r}"
         ) from err
     if bad:
-        raise ValueError(f"{path}: median time not positive for {bad}")
+        raise ValueError(f"{path}: median time not a positive number for {bad}")
     return run
 
 
@@ -123,9 +124,9 @@ def markdown(changes: list[Change], base: Path, new: Path, only: tuple[list[str]
         "|---|---|---|---|",
     ]
     for c in changes:
-        memory = (
-            "–" if c.memory is None else f"x{c.memory:.2f} ({c.memory_mb[0]:.0f} -> {c.memory_mb[1]:.0f} MB)"
-        )
+        memory = "–" if c.memory_mb is None else f"{c.memory_mb[0]:.0f} -> {c.memory_mb[1]:.0f} MB"
+        if c.memory_mb is not None and c.memory_mb[0] >= MEMORY_SLACK_MB:  # a ratio of a few MB says nothing
+            memory += f" (x{c.memory:.2f})"
         results = "differ: " + ", ".join(c.results) if c.results else "same" if c.checked else "–"
         lines.append(f"| {c.name.split('::')[-1]} | x{c.time:.2f} | {memory} | {results} |")
     for label, names in zip(("only in the base run", "only in the new run"), only, strict=True):

@@ -21,9 +21,10 @@ from bench.readme import machine_line
 from bench.results import write_json_atomic
 
 FILE = "runs.json"
-SHOWN = 5  # a report lists the newest runs of its plan, and says how many older ones it left out
-COUNTS = ("builds_run", "builds_reused", "evals_run", "evals_reused")
-FIELDS = ("finished", "preset", "keys_digest", "git", "machine", "jobs", *COUNTS, "failures", "seconds")
+SHOWN = 5  # a report lists this many runs of its plan (``recent``), and how many more there are
+COUNTS = ("builds_run", "builds_reused", "evals_run", "evals_reused", "failures")
+TEXTS = ("finished", "preset", "keys_digest", "machine", "executor")
+FIELDS = (*TEXTS, "git", "jobs", *COUNTS, "seconds")
 
 
 def runs_path(workspace_root: Path) -> Path:
@@ -38,16 +39,32 @@ def read_runs(workspace_root: Path) -> list[dict[str, Any]]:
         return []
     try:
         runs = json.loads(path.read_text(encoding="utf-8"))["runs"]
-    except (json.JSONDecodeError, KeyError, TypeError) as err:
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError) as err:
         raise ValueError(f"{path}: not a run record ({{'runs': [...]}}): {err}") from err
     if not isinstance(runs, list):
         raise ValueError(f"{path}: 'runs' must be a list, got {type(runs).__name__}")
     for i, entry in enumerate(runs):
-        missing = [k for k in FIELDS if k not in entry] if isinstance(entry, dict) else list(FIELDS)
-        if missing or not isinstance(entry["git"], dict):
-            why = f"lacks {missing}" if missing else "'git' must be {'commit', 'dirty'}"
+        why = _malformed(entry)
+        if why:
             raise ValueError(f"{path}: runs[{i}] {why}; move the file aside to start a new record")
     return runs
+
+
+def _malformed(entry: Any) -> str:
+    """Why ``entry`` is not a run of this format ('' when it is)."""
+    if not isinstance(entry, dict):
+        return f"is a {type(entry).__name__}, not an object"
+    missing = [k for k in FIELDS if k not in entry]
+    if missing:
+        return f"lacks {missing}"
+    number = (int, float)
+    wrong = [k for k in TEXTS if not isinstance(entry[k], str)]
+    wrong += [
+        k for k in (*COUNTS, "seconds") if not isinstance(entry[k], number) or isinstance(entry[k], bool)
+    ]
+    wrong += [] if entry["jobs"] is None or isinstance(entry["jobs"], int) else ["jobs"]
+    wrong += [] if isinstance(entry["git"], dict) else ["git"]
+    return f"has fields of the wrong type: {wrong}" if wrong else ""
 
 
 def record_run(
@@ -73,7 +90,7 @@ def record_run(
         "executor": executor,
         "jobs": jobs,
         **{k: run[k] for k in COUNTS},
-        "failures": len(run["failures"]),
+        "failures": len(run["failures"]),  # failed cells are among those run
         "cells_seconds": round(run["seconds"], 1),
         "seconds": round(seconds, 1),
     }
@@ -87,10 +104,11 @@ def runs_of(workspace_root: Path, keys_digest: str) -> list[dict[str, Any]]:
 
 
 def cache_state(entry: dict[str, Any]) -> str:
-    """``cold`` (every cell ran), ``warm`` (every cell reused) or ``resumed`` (some of each)."""
-    ran = entry["builds_run"] + entry["evals_run"]
+    """``cold`` (every cell ran), ``warm`` (cells reused, none newly computed: the ones that ran, if any,
+    failed again) or ``resumed`` (some computed, some reused)."""
+    computed = entry["builds_run"] + entry["evals_run"] - entry["failures"]
     reused = entry["builds_reused"] + entry["evals_reused"]
-    return "warm" if ran == 0 else "cold" if reused == 0 else "resumed"
+    return "cold" if reused == 0 else "warm" if computed <= 0 else "resumed"
 
 
 def last_computing(history: list[dict[str, Any]]) -> dict[str, Any] | None:
@@ -108,19 +126,23 @@ def recent(history: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return shown
 
 
-def describe(entry: dict[str, Any]) -> str:
-    """One line: ``2026-12-02 07:37 cold: 89 builds + 97 evaluations run, 0 reused, 44.7 min (2 jobs,
-    <cpu>, git 680b0dc)``."""
+def took(entry: dict[str, Any]) -> str:
+    """``44.7 min cold (2 jobs, <cpu>)``: the run's wall clock, cache state and machine."""
     minutes = entry["seconds"] / 60
-    took = f"{minutes:.1f} min" if minutes >= 1 else f"{entry['seconds']:.0f} s"
+    time = f"{minutes:.1f} min" if minutes >= 1 else f"{entry['seconds']:.0f} s"
+    how = f"{entry['jobs']} jobs" if entry["jobs"] else entry["executor"]
+    return f"{time} {cache_state(entry)} ({how}, {entry['machine']})"
+
+
+def describe(entry: dict[str, Any]) -> str:
+    """One line: ``2026-12-02 07:37: 89 builds + 97 evaluations run, 0 reused, 44.7 min cold (2 jobs,
+    <cpu>), git 680b0dc``."""
     failed = f", {entry['failures']} failed" if entry["failures"] else ""
     git = entry["git"]
     version = (git.get("commit") or "?")[:7] + (
         " with uncommitted changes to moegs" if git.get("dirty") else ""
     )
-    how = f"{entry['jobs']} jobs" if entry["jobs"] else entry.get("executor", "?")
     return (
-        f"{entry['finished'][:16]} {cache_state(entry)}: {entry['builds_run']} builds + {entry['evals_run']} "
-        f"evaluations run, {entry['builds_reused'] + entry['evals_reused']} reused{failed}, {took} "
-        f"({how}, {entry['machine']}, git {version})"
+        f"{entry['finished'][:16]}: {entry['builds_run']} builds + {entry['evals_run']} evaluations run, "
+        f"{entry['builds_reused'] + entry['evals_reused']} reused{failed}, {took(entry)}, git {version}"
     )

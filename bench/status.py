@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.readme import paper_name, update_readme
-from bench.runlog import cache_state, last_computing
+from bench.runlog import last_computing, took
 from moegs.io import read_json
 
 QUICK = Path("reports") / "summary.json"
@@ -117,8 +117,8 @@ def wall_clock_cell(summary: dict[str, Any]) -> str:
     run = last_computing(summary["header"].get("history", []))
     if run is None:  # rendered before bench.runlog existed, or the workspace recorded only warm runs
         return "not recorded"
-    how = f"{run['jobs']} jobs" if run["jobs"] else run["executor"]
-    return f"{run['seconds'] / 60:.1f} min {cache_state(run)} ({how}, {run['machine']})"
+    failed = f", {run['failures']} cells failed" if run["failures"] else ""
+    return took(run) + failed
 
 
 def _provenance(summary: dict[str, Any]) -> str:

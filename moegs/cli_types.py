@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from collections.abc import Callable
 from typing import TypeVar
 
@@ -27,8 +28,8 @@ def _checked(parse: Callable[[str], T], ok: Callable[[T], bool], expected: str) 
 
 positive_int = _checked(int, lambda v: v >= 1, "a positive integer")
 non_negative_int = _checked(int, lambda v: v >= 0, "an integer >= 0")
-positive_float = _checked(float, lambda v: v > 0, "a positive number")
-non_negative_float = _checked(float, lambda v: v >= 0, "a number >= 0")
+positive_float = _checked(float, lambda v: 0 < v < math.inf, "a positive number")
+non_negative_float = _checked(float, lambda v: 0 <= v < math.inf, "a number >= 0")
 seed = _checked(int, lambda v: 0 <= v < 2**63, "an integer seed in [0, 2**63)")
 unit_time = _checked(float, lambda v: 0.0 <= v <= 1.0, "a time in [0, 1]")
 unit_scale = _checked(float, lambda v: 0.0 < v <= 1.0, "a scale in (0, 1]")

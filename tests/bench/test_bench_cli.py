@@ -16,6 +16,7 @@ TAB17 = ["--quick", "--tables", "17", "--no-run", "--no-progress"]
         (["--jobs", "two"], "argument --jobs: expected a positive integer, got 'two'"),
         (["--timeout", "-1"], "argument --timeout: expected a positive number, got '-1'"),
         (["--timeout", "nan"], "argument --timeout: expected a positive number, got 'nan'"),
+        (["--timeout", "inf"], "argument --timeout: expected a positive number, got 'inf'"),
         (["--slurm-time", "0"], "argument --slurm-time: expected a positive integer, got '0'"),
         (["--slurm-gpus", "-1"], "argument --slurm-gpus: expected an integer >= 0, got '-1'"),
         (["--slurm-cpus", "0"], "argument --slurm-cpus: expected a positive integer, got '0'"),
@@ -29,11 +30,14 @@ def test_bad_values_are_rejected_by_the_parser(argv, message, capsys):
 
 
 @pytest.mark.parametrize("flag", ["--workspace", "--out"])
-def test_a_file_where_a_folder_belongs_is_named(flag, tmp_path, capsys):
+@pytest.mark.parametrize("below", ["", "sub/folder"])
+def test_a_file_where_a_folder_belongs_is_named(flag, below, tmp_path, capsys):
     (tmp_path / "a-file").write_text("x")
+    folder = tmp_path / "a-file" / below
     other = "--out" if flag == "--workspace" else "--workspace"
-    assert main([*TAB17, flag, str(tmp_path / "a-file"), other, str(tmp_path / "ok")]) == 2
-    assert f"error: {flag} {tmp_path / 'a-file'} is a file; expected a folder" in capsys.readouterr().err
+    assert main([*TAB17, flag, str(folder), other, str(tmp_path / "ok")]) == 2
+    err = capsys.readouterr().err
+    assert f"error: {flag} {folder}: {tmp_path / 'a-file'} is a file; expected a folder" in err
 
 
 def test_unknown_tables_and_candidates_list_the_valid_names(tmp_path, capsys):

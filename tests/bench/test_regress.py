@@ -33,7 +33,7 @@ def test_identical_runs_pass(tmp_path, capsys):
     base, new = _run(tmp_path / "a.json"), _run(tmp_path / "b.json")
     assert main([str(base), str(new)]) == 0
     out = capsys.readouterr().out
-    assert "| test_rasterize[20k-256px-fwd-cpu] | x1.00 | x1.00 (300 -> 300 MB) | – |" in out
+    assert "| test_rasterize[20k-256px-fwd-cpu] | x1.00 | 300 -> 300 MB (x1.00) | – |" in out
     assert "| test_quick_training_steps[grid4d] | x1.00 | – | same |" in out
 
 
@@ -115,6 +115,9 @@ def test_bad_input_names_the_file(tmp_path, capsys):
     assert "missing.json: no such benchmark JSON" in capsys.readouterr().err
     _run(tmp_path / "zero.json", median_render=0.0)
     assert main([str(tmp_path / "zero.json"), str(tmp_path / "zero.json")]) == 2
-    assert f"zero.json: median time not positive for ['{RENDER}']" in capsys.readouterr().err
+    assert f"zero.json: median time not a positive number for ['{RENDER}']" in capsys.readouterr().err
+    _run(tmp_path / "inf.json", median_render=float("inf"))
+    assert main([str(tmp_path / "inf.json"), str(tmp_path / "inf.json")]) == 2
+    assert "inf.json: median time not a positive number" in capsys.readouterr().err
     with pytest.raises(ValueError, match=r"0 autosaved run\(s\), need 2"):
         newest_runs(tmp_path / "empty")

@@ -44,19 +44,27 @@ def test_runs_are_appended_and_filtered_by_plan(tmp_path):
 def test_cache_state_and_description(tmp_path):
     cold = _record(tmp_path)
     warm = _record(tmp_path, **WARM)
-    resumed = _record(tmp_path, builds_run=1, builds_reused=2, failures=["x"])
-    assert [cache_state(e) for e in (cold, warm, resumed)] == ["cold", "warm", "resumed"]
+    resumed = _record(tmp_path, builds_run=2, builds_reused=1, failures=["x"])
+    failed_again = _record(
+        tmp_path, builds_run=1, evals_run=0, builds_reused=2, failures=["x"]
+    )  # computed nothing new
+    states = [cache_state(e) for e in (cold, warm, resumed, failed_again)]
+    assert states == ["cold", "warm", "resumed", "warm"]
     line = describe(cold)
-    assert " cold: 3 builds + 2 evaluations run, 0 reused, 1.2 min (2 jobs, " in line
+    assert ": 3 builds + 2 evaluations run, 0 reused, 1.2 min cold (2 jobs, " in line
     assert "1 failed" in describe(resumed) and "failed" not in line
-    clean, dirty = ({**cold, "git": {"commit": "0123456789", "dirty": d}} for d in (False, True))
-    assert describe(clean).endswith(", git 0123456)")
-    assert describe(dirty).endswith(", git 0123456 with uncommitted changes to moegs)")
+    clean, dirty = (
+        {**cold, "machine": "cpu", "git": {"commit": "0123456789", "dirty": d}} for d in (False, True)
+    )
+    assert describe(clean).endswith("1.2 min cold (2 jobs, cpu), git 0123456")
+    assert describe(dirty).endswith(
+        "1.2 min cold (2 jobs, cpu), git 0123456 with uncommitted changes to moegs"
+    )
 
 
 def test_warm_reruns_do_not_hide_the_run_that_computed_the_cells(tmp_path):
     cold = _record(tmp_path)
-    warms = [_record(tmp_path, **WARM) for _ in range(SHOWN + 2)]
+    warms = [_record(tmp_path, **WARM, seconds=float(i)) for i in range(SHOWN + 2)]  # distinct entries
     shown = recent(read_runs(tmp_path))
     assert len(shown) == SHOWN and shown[0] == cold and shown[1:] == warms[-(SHOWN - 1) :]
     assert recent(read_runs(tmp_path)[:3]) == [cold, *warms[:2]]
@@ -76,10 +84,25 @@ def test_a_damaged_record_names_its_file_and_entry(tmp_path, content, message):
         read_runs(tmp_path)
 
 
-def test_an_entry_of_another_format_is_refused(tmp_path):
+@pytest.mark.parametrize(
+    ("change", "wrong"),
+    [
+        ({"git": "680b0dc"}, "git"),
+        ({"seconds": "75"}, "seconds"),
+        ({"jobs": 1.5}, "jobs"),
+        ({"failures": True}, "failures"),
+    ],
+)
+def test_an_entry_of_another_format_is_refused(tmp_path, change, wrong):
     entry = _record(tmp_path)
-    runs_path(tmp_path).write_text(json.dumps({"runs": [entry, {**entry, "git": "680b0dc"}]}))
-    with pytest.raises(ValueError, match=r"runs\[1\] 'git' must be"):
+    runs_path(tmp_path).write_text(json.dumps({"runs": [entry, {**entry, **change}]}))
+    with pytest.raises(ValueError, match=rf"runs\[1\] has fields of the wrong type: \['{wrong}'\]"):
+        read_runs(tmp_path)
+
+
+def test_a_record_that_is_not_text_names_its_file(tmp_path):
+    runs_path(tmp_path).write_bytes(b"\xff\xfe{")
+    with pytest.raises(ValueError, match=r"runs\.json: not a run record"):
         read_runs(tmp_path)
 
 
@@ -130,4 +153,6 @@ def test_reports_list_the_runs_of_their_plan(tmp_path, monkeypatch):
         assert main(_tab17(tmp_path)) == 0
     for page in ("REPORT.md", "REPORT.html"):
         text = (report / page).read_text()
-        assert "(1 more not shown)" in text and text.count(" cold: 4 builds") == SHOWN
+        assert (
+            "(1 more not shown)" in text and text.count(": 4 builds + 3 evaluations run, 0 reused,") == SHOWN
+        )

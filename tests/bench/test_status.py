@@ -86,7 +86,13 @@ def test_counts_floors_and_routing():
 
 
 def test_wall_clock_is_the_recorded_run_that_computed_the_cells():
-    run = {"seconds": 2682.0, "jobs": 2, "executor": "local", "machine": "Intel Xeon, 2 logical CPUs"}
+    run = {
+        "seconds": 2682.0,
+        "jobs": 2,
+        "executor": "local",
+        "machine": "Intel Xeon, 2 logical CPUs",
+        "failures": 0,
+    }
     cold = {**run, "builds_run": 89, "evals_run": 97, "builds_reused": 0, "evals_reused": 0}
     warm = {**run, "seconds": 21.0, "builds_run": 0, "evals_run": 0, "builds_reused": 89, "evals_reused": 97}
     summary = _summary([])
@@ -95,6 +101,9 @@ def test_wall_clock_is_the_recorded_run_that_computed_the_cells():
     assert wall_clock_cell(summary) == "44.7 min cold (2 jobs, Intel Xeon, 2 logical CPUs)"
     summary["header"]["history"] = [warm]
     assert wall_clock_cell(summary) == "not recorded"
+    slurm = {**cold, "jobs": None, "executor": "slurm", "builds_reused": 9, "builds_run": 80, "failures": 2}
+    summary["header"]["history"] = [cold, slurm, warm]
+    assert wall_clock_cell(summary) == "44.7 min resumed (slurm, Intel Xeon, 2 logical CPUs), 2 cells failed"
 
 
 def test_real_scene_rows_pair_standard_with_quick():
