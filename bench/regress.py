@@ -36,15 +36,19 @@ MEMORY_SLACK_MB = 2.0  # RSS moves by a page table or two between processes: no 
 
 @dataclass(frozen=True)
 class Change:
-    """One case present in both runs: ``time`` is new / base, ``memory`` new / base with the base at least
-    ``MEMORY_SLACK_MB`` (None when a run did not record it)."""
+    """One case present in both runs: ``time`` is new / base; ``memory_mb`` (base, new) peak MB, None when a
+    run did not record it."""
 
     name: str
     time: float
-    memory: float | None
     memory_mb: tuple[float, float] | None
     checked: tuple[str, ...]  # the RESULT_KEYS the base run recorded
     results: tuple[str, ...]  # those whose values differ
+
+    @property
+    def memory(self) -> float | None:
+        """New / base peak memory, the base taken as at least ``MEMORY_SLACK_MB``."""
+        return None if self.memory_mb is None else self.memory_mb[1] / max(self.memory_mb[0], MEMORY_SLACK_MB)
 
 
 def read_run(path: Path) -> dict[str, dict]:
@@ -85,12 +89,10 @@ def compare(base: dict[str, dict], new: dict[str, dict]) -> list[Change]:
             continue
         a_info, b_info = base[name].get("extra_info", {}), b.get("extra_info", {})
         memory = (peak_mb(a_info), peak_mb(b_info))
-        recorded = None if None in memory else memory
-        ratio = None if recorded is None else recorded[1] / max(recorded[0], MEMORY_SLACK_MB)
         checked = tuple(k for k in RESULT_KEYS if k in a_info)
         differ = tuple(k for k in checked if a_info[k] != b_info.get(k))
         time = b["stats"]["median"] / base[name]["stats"]["median"]
-        out.append(Change(name, time, ratio, recorded, checked, differ))
+        out.append(Change(name, time, None if None in memory else memory, checked, differ))
     return out
 
 
