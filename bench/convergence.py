@@ -30,7 +30,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from bench.results import atomic_path, write_text_atomic
+from bench.results import write_text_atomic
 from bench.schedules import QUICK_ITERATIONS, scaled_overrides
 
 
@@ -259,12 +259,9 @@ def plot(records: list[dict], paper: dict[str, float], title: str, path: Path) -
     axes[0].legend(fontsize=7)
     fig.suptitle(title + (" (dotted: paper, full resolution and schedule)" if paper else ""), fontsize=9)
     fig.tight_layout()
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110, format=path.suffix.lstrip("."))
-    finally:
-        plt.close(fig)
-    return path
+    from bench.plots import save_figure
+
+    return save_figure(fig, path, tight=False)
 
 
 def paper_values(scene: str, experts: list[str]) -> dict[str, float]:

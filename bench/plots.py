@@ -24,11 +24,13 @@ from bench.values import AVERAGE, MEAN, STAND_IN, SpecValues  # noqa: E402
 OURS, PAPER = "#1f77b4", "#9e9e9e"
 
 
-def _save(fig: Any, path: Path) -> Path:
-    """Write ``fig`` to ``path`` through a temporary file (an interrupted render leaves no broken image)."""
+def save_figure(fig: Any, path: Path, tight: bool = True) -> Path:
+    """Write ``fig`` to ``path`` at 110 dpi (``tight``: cropped to its content) through a temporary file,
+    so an interrupted render leaves no broken image; the figure is closed."""
     try:
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110, bbox_inches="tight", format=path.suffix.lstrip("."))
+            crop = {"bbox_inches": "tight"} if tight else {}
+            fig.savefig(tmp, dpi=110, format=path.suffix.lstrip("."), **crop)
     finally:
         plt.close(fig)
     return path
@@ -85,7 +87,7 @@ def paper_vs_ours(values: SpecValues, out_dir: Path) -> list[Path]:
         ax.set_title(f"{m} - {col}" + (" (synthetic stand-in)" if col == STAND_IN else ""), fontsize=9)
         ax.legend(fontsize=6, title=ref, title_fontsize=6, loc="best", framealpha=0.6)
     fig.suptitle(f"{spec.id}: {spec.title} (hatched: not comparable, stand-in or subset)", fontsize=9)
-    return [_save(fig, out_dir / f"{spec.id}_paper_vs_ours.png")]
+    return [save_figure(fig, out_dir / f"{spec.id}_paper_vs_ours.png")]
 
 
 def limitations(values: SpecValues, out_dir: Path) -> list[Path]:
@@ -115,7 +117,7 @@ def limitations(values: SpecValues, out_dir: Path) -> list[Path]:
     axes[2].legend(fontsize=7)
     for ax in axes[:2]:
         ax.axis("off")
-    out.append(_save(fig, out_dir / f"{values.spec.id}_spatial_temporal.png"))
+    out.append(save_figure(fig, out_dir / f"{values.spec.id}_spatial_temporal.png"))
     return out
 
 
@@ -138,7 +140,7 @@ def gates(values: SpecValues, out_dir: Path) -> list[Path]:
     axes[1, k].set_title("ground truth", fontsize=9)
     for ax in axes.flat:
         ax.axis("off")
-    return [_save(fig, out_dir / f"{values.spec.id}.png")]
+    return [save_figure(fig, out_dir / f"{values.spec.id}.png")]
 
 
 def trajectories(values: SpecValues, out_dir: Path) -> list[Path]:
@@ -157,7 +159,7 @@ def trajectories(values: SpecValues, out_dir: Path) -> list[Path]:
         ax.set_title(row.display, fontsize=9)
         ax.set_aspect("equal", adjustable="datalim")
         ax.tick_params(labelsize=6)
-    out = [_save(fig, out_dir / f"{values.spec.id}.png")]
+    out = [save_figure(fig, out_dir / f"{values.spec.id}.png")]
     return out + paper_vs_ours(values, out_dir)
 
 
