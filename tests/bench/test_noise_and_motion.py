@@ -7,7 +7,20 @@ import json
 import pytest
 import torch
 
-from bench.claims import FAILED, HELD, NA, NOISE, better, evaluate, exceeds, monotone, order, within
+from bench.claims import (
+    FAILED,
+    HELD,
+    NA,
+    NOISE,
+    better,
+    differs_across,
+    evaluate,
+    exceeds,
+    monotone,
+    order,
+    spread,
+    within,
+)
 from bench.registry import get_spec, list_specs
 from bench.spec import Claim
 from moegs.moe import region_shares, winner_coherence
@@ -64,6 +77,43 @@ def test_lpips_direction_and_other_checks_with_noise():
         == NOISE
     )
     assert better(View({}), "A", "B").status == NA
+
+
+def test_a_comparison_lost_beyond_the_noise_fails_the_claim_whatever_the_others_say():
+    """One scene inside the spread does not excuse another lost beyond it."""
+    scenes = {("A", "s1", "PSNR"): 28.1, ("B", "s1", "PSNR"): 28.0, ("A", "s2", "PSNR"): 27.0,
+              ("B", "s2", "PSNR"): 28.0}  # fmt: skip
+    assert better(View(scenes, {"PSNR": 0.3}), "A", "B", columns=["s1", "s2"]).status == FAILED
+    # the same in a chain: A > B within noise, B > C lost by 1 dB
+    assert order(View(psnr(A=30.1, B=30.0, C=31.0), {"PSNR": 0.3}), ["A", "B", "C"]).status == FAILED
+
+
+@pytest.mark.parametrize(("strict", "status"), [(True, FAILED), (False, HELD)])
+def test_a_tie_fails_a_strict_claim_and_holds_a_non_strict_one(strict, status):
+    assert better(View(psnr(A=28.0, B=28.0)), "A", "B", strict=strict).status == status
+
+
+def test_equal_values_do_not_exceed_or_make_a_row_more_stable():
+    tie = View({("A", "Average", "PSNR"): 30.0, ("B", "Max", "PSNR"): 30.0})
+    assert exceeds(tie, "A", "Average", ["B"], "Max").status == FAILED
+    ranges = {("A", "Min", "PSNR"): 29.0, ("A", "Max", "PSNR"): 30.0, ("B", "Min", "PSNR"): 28.0,
+              ("B", "Max", "PSNR"): 29.0}  # fmt: skip
+    assert spread(View(ranges), "A", ["B"]).status == FAILED  # the same 1 dB range: not more stable
+    ranges[("A", "Min", "PSNR")] = 29.5
+    assert spread(View(ranges), "A", ["B"]).status == HELD
+
+
+def test_the_winner_of_a_lower_is_better_metric_is_the_lowest():
+    """``differs_across`` on LPIPS: A has the lowest LPIPS on both scenes, so one method dominates."""
+    lpips = {("A", "s1", "LPIPS"): 0.10, ("B", "s1", "LPIPS"): 0.20, ("C", "s1", "LPIPS"): 0.30,
+             ("A", "s2", "LPIPS"): 0.10, ("B", "s2", "LPIPS"): 0.30, ("C", "s2", "LPIPS"): 0.20}  # fmt: skip
+
+    class Scenes(View):
+        def columns(self, selector):
+            return ["s1", "s2"] if selector == "@scenes" else super().columns(selector)
+
+    result = differs_across(Scenes(lpips), ["A", "B", "C"], metric="LPIPS")
+    assert result.status == FAILED and result.detail == "s1: A, s2: A"
 
 
 def test_motion_specs_recheck_psnr_claims_on_the_dynamic_region():
@@ -335,6 +385,65 @@ def test_tables_of_scenes_without_a_stability_run_average_several_seeds_and_judg
     again.write_text(json.dumps(other_cells))
     assert run_noise(plan, elsewhere, again)["scenes"] == seed_noise(plan, elsewhere)["scenes"]
     assert run_noise(plan, ws, summary)["scenes"] == seed_noise(plan, ws)["scenes"]
+
+
+def test_a_table_judged_over_several_scenes_takes_the_largest_spread_among_them():
+    from bench.signals import noise_for
+
+    noise = {
+        "metrics": {"PSNR": 0.1},
+        "scenes": {"s1": {"metrics": {"PSNR": 0.5}}, "s2": {"metrics": {"PSNR": 0.2}}},
+    }
+    assert noise_for(noise, ["s1", "s2"]) == {"PSNR": 0.5}
+    assert noise_for(noise, ["s2", "s1"]) == {"PSNR": 0.5}
+    assert noise_for(noise, ["s2", "s3"]) == {"PSNR": 0.2}  # s3 has none of its own: the stand-ins' 0.1
+
+
+def test_a_table_trained_once_measures_no_spread(tmp_path):
+    """One seed per cell is no evidence of the noise: the scene keeps borrowing a measured spread instead of
+    being judged against zero."""
+    import bench.plan
+    from bench.presets import get_preset
+    from bench.signals import seed_noise
+    from bench.store import Workspace
+
+    plan = bench.plan.make_plan(["tab03"], get_preset("quick"))
+    assert {s.seed for s in plan.specs[0].slots} == {0}
+    ws = Workspace(tmp_path)
+    computed = [slot for slot in plan.specs[0].slots if slot.task is not None]  # not the external rows
+    assert computed
+    for i, slot in enumerate(computed):
+        _write_psnr(ws, slot.task, 25.0 + 0.1 * i)
+    assert seed_noise(plan, ws) == {"preset": "quick", "scenes": {}, "metrics": {}, "source": []}
+
+
+def test_deltas_are_ours_minus_the_papers_on_comparable_cells_only(tmp_path, monkeypatch):
+    import bench.plan
+    from bench.presets import get_preset
+    from bench.store import Workspace
+    from bench.values import SpecValues
+
+    monkeypatch.setattr(bench.plan, "resolve_scenes", _scenes_with_real_panoptic)
+    quick = get_preset("quick")
+    real, stand_in = bench.plan.make_plan(["tab16", "tab06"], quick).specs
+    ws = Workspace(tmp_path)
+    for sp in (real, stand_in):
+        for slot in sp.slots:
+            if slot.task is not None:
+                _write_psnr(ws, slot.task, 20.0)
+    values = SpecValues(real, ws)
+    deltas = values.deltas()
+    assert deltas and all(d["ours"] == pytest.approx(20.0) for d in deltas)
+    for d in deltas:
+        assert d["delta"] == pytest.approx(20.0 - values.paper.get(d["row"], d["column"], d["metric"]))
+    assert [abs(d["delta"]) for d in deltas] == sorted((abs(d["delta"]) for d in deltas), reverse=True)
+    # a stand-in's numbers are ours alone: no paper value beside them, no delta, though the paper prints
+    # one in the same cell of Table VI (its metric columns average the N3V scenes)
+    on_stand_in = SpecValues(stand_in, ws)
+    measured = on_stand_in.measured()
+    assert measured and all(m["paper"] is None for m in measured)
+    assert any(on_stand_in.paper.get(m["row"], m["column"], m["metric"]) is not None for m in measured)
+    assert on_stand_in.deltas() == []
 
 
 class PrintedView(View):

@@ -85,6 +85,13 @@ def test_ast_noise_schedule_and_gating(scene):
     expert.train()
     noisy = [expert.deltas(0.5)["dx"] for _ in range(2)]
     assert not torch.allclose(noisy[0], noisy[1])  # a new draw per call while training
+    times = []
+    hook = expert.fields.register_forward_pre_hook(lambda module, args: times.append(args[1]))
+    expert.deltas(0.5)
+    hook.remove()
+    (time,) = times
+    assert time.shape == (expert.num_gaussians, 1) and not torch.allclose(time, torch.full_like(time, 0.5))
+    assert torch.equal(time, torch.full_like(time, float(time[0])))  # one draw shared by every Gaussian
     expert.eval()
     assert torch.equal(expert.deltas(0.5)["dx"], expert.deltas(0.5)["dx"])  # no noise at evaluation
 

@@ -109,6 +109,32 @@ def test_static_drift_over_the_model_duration():
     assert torch.allclose(means, expert.splats["means"] + 4.0 / 3.0)
 
 
+def test_dynamic_gaussians_follow_their_keyframes_between_k_and_k_plus_1():
+    """Keyframe ``j`` at ``x = j`` rotated by ``0.2 j`` about z: Catmull-Rom reproduces the line and slerp
+    the angle, so frame time ``k + δ`` (in keyframes) sits at ``x = k + δ``, angle ``0.2 (k + δ)``."""
+    expert, scene = _expert(num_frames=5)
+    c, s = expert.config, expert.splats
+    keyframes = s["motion_means"].shape[1]
+    angles = 0.2 * torch.arange(keyframes, dtype=torch.float32)
+    with torch.no_grad():
+        s["dynamic"][:2] = True
+        s["drift"].zero_()
+        s["motion_means"][:2] = 0.0
+        s["motion_means"][:2, :, 0] = torch.arange(keyframes, dtype=torch.float32)
+        s["motion_quats"][:2] = 0.0
+        s["motion_quats"][:2, :, 0] = torch.cos(angles / 2)
+        s["motion_quats"][:2, :, 3] = torch.sin(angles / 2)
+    t = scene.train[len(scene.train) // 2].camera.time
+    k, delta = keyframe_position(expert.frame_index(t), c.shift, c.interval)
+    assert 1 <= k <= keyframes - 3
+    position = k + delta
+    frame = expert.frame(t)
+    torch.testing.assert_close(frame.means[:2], torch.tensor([[position, 0.0, 0.0]] * 2))
+    half = 0.2 * position / 2
+    expected = torch.tensor([[math.cos(half), 0.0, 0.0, math.sin(half)]] * 2)
+    torch.testing.assert_close(frame.quats[:2], expected)
+
+
 def test_conversion_uses_drift_over_squared_distance_and_best_frame():
     expert, scene = _expert()
     s = expert.splats

@@ -73,6 +73,18 @@ def test_perturbation_loss_subsample_and_value():
     sizes.clear()
     perturbation_loss(encode, points, torch.tensor([0.1, 0.1]), ratio=1.0)
     assert sizes == [50, 50]
+    inputs = []
+
+    def record(p):
+        inputs.append(p)
+        return 2.0 * p
+
+    value = perturbation_loss(record, torch.rand(40, 3), torch.tensor([0.1, 0.2, 0.3]), ratio=1.0)
+    moved, original = inputs
+    offsets = moved - original
+    assert (offsets.abs() <= torch.tensor([0.1, 0.2, 0.3])).all()
+    # the squared norm of each row's change (summed over channels), averaged over rows
+    assert float(value) == pytest.approx(float((2.0 * offsets).square().sum(-1).mean()))
 
 
 def test_warm_up_then_deltas_in_activated_space(scene):

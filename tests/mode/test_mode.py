@@ -114,6 +114,22 @@ def test_code_preset_gates_position_and_rotation_separately(scene):
         MoDEConfig(experts=("fourdgs", "stg"))
 
 
+def test_code_preset_mixes_position_and_rotation_by_their_own_gates(scene):
+    """Gate channels ``[0:E]`` choose the position, ``[E:2E]`` the rotation (the code's spline layout)."""
+    mode = make(scene, top_k=1, mixed=("means", "quats"), gate_per_attribute=True)
+    e = len(mode.members)
+    with torch.no_grad():
+        control = mode.splats[GATE_KEY]
+        control.zero_()
+        control[:, :, 0] = 10.0  # position: the base
+        control[:, :, e + 1] = 10.0  # rotation: the second expert
+        got = mode.frame(0.4)
+        base, other = (m.deform(mode.splats, 0.4, raw_quats=True) for m in mode.members)
+    assert not torch.allclose(base.means, other.means) and not torch.allclose(base.quats, other.quats)
+    torch.testing.assert_close(got.means, base.means)
+    torch.testing.assert_close(got.quats, torch.nn.functional.normalize(other.quats, dim=-1))
+
+
 def test_schedules_restart_with_the_base_fine_stage(scene):
     """The code counts the fine stage's iterations from 1 again (``specs/official_moegs.md`` section 6):
     with a 4DGaussians base, every group's schedule (the members' and the gate control weights') starts

@@ -3,6 +3,7 @@ are named."""
 
 from __future__ import annotations
 
+import importlib
 import math
 from dataclasses import replace
 
@@ -28,6 +29,37 @@ def test_kd_loss_by_hand():
     assert float(got) == pytest.approx(0.25 * 0.4 / 2 + 0.75 * 0.3 / 2)
     plain = kd_loss(rgb, gt, moe, None, kd_lambda=0.25, lambda_dssim=0.0)
     assert float(plain) == pytest.approx(0.25 * float(l1(rgb, gt)) + 0.75 * float(l1(rgb, moe)))
+
+
+@pytest.mark.parametrize("weighted", [True, False])
+def test_the_kd_loss_weights_by_the_students_own_gate(monkeypatch, weighted):
+    """The student (the teacher's second expert here) is weighted by its own gate ``G'_k``, not another
+    expert's; ``weighted=False`` passes no gate ("w/o Weight")."""
+    scene = tiny_scene(num_frames=2, cameras=3, size=32, num_points=80)
+    make = {n: get_expert_class(n) for n in ("mcmc", "static")}
+    experts = [cls.from_scene(scene, cls.config_class.from_preset("quick")).eval() for cls in make.values()]
+    teacher = MoEGS(experts, RouterConfig.from_preset("quick"))
+    with torch.no_grad():
+        for p in teacher.router.parameters():
+            p.normal_()
+        gates = [teacher.render(v.camera, scene.background).gates for v in scene.train]
+    seen = []
+
+    def spy(rgb, target, moe_image, gate, kd_lambda, lambda_dssim):
+        seen.append(gate)
+        return kd_loss(rgb, target, moe_image, gate, kd_lambda, lambda_dssim)
+
+    # the package exports the function ``distill`` under the module's name: reach the module itself
+    monkeypatch.setattr(importlib.import_module("moegs.moe.distill"), "kd_loss", spy)
+    student = make["static"].from_scene(scene, make["static"].config_class.from_preset("quick"))
+    distill(student, teacher, scene, DistillConfig(iterations=3, weighted=weighted))
+    assert len(seen) >= 3
+    for gate in seen:
+        if not weighted:
+            assert gate is None
+            continue
+        assert any(torch.equal(gate, g[1]) for g in gates)
+        assert not any(torch.allclose(gate, g[0]) for g in gates)
 
 
 def test_distilled_student_trains_and_reloads(tmp_path):

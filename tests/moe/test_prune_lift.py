@@ -50,6 +50,16 @@ def test_importance_is_zero_for_gaussians_no_view_sees(scene, variant):
     assert (scores[1] > 0).any()
 
 
+def test_importance_is_the_mean_over_views(scene):
+    """``E_i = 1/|D| sum_v ...``: a threshold means the same whatever the number of views scored."""
+    m = model(scene)
+    one, two = (gate_importance(m, [v], scene.background) for v in scene.train[:2])
+    both = gate_importance(m, scene.train[:2], scene.background)
+    for k in range(len(both)):
+        torch.testing.assert_close(both[k], (one[k] + two[k]) / 2)
+        assert (both[k] > 0).any()
+
+
 def test_ratio_pruning_drops_the_least_important_rows_everywhere(scene):
     m = model(scene)
     views = scene.train[:3]

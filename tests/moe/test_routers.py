@@ -86,9 +86,9 @@ def test_weight_splat_uses_the_expert_geometry_at_t(scene, experts):
     routing features as colours (and background 1 where nothing covers the pixel)."""
     model = MoEGS(experts, config("vapr"))
     with torch.no_grad():
-        for p in model.router.weights.mix:
+        for p in [*model.router.weights.mix, *model.router.weights.time]:
             p.uniform_(-1, 1)
-    camera = scene.train[7].camera  # t = 0.5
+    camera = scene.train[4].camera  # t = 0.5
     router = model.router
     inputs = expert_inputs(experts, camera, scene.background)
     feats = [router.features(k, e, camera.time) for k, e in enumerate(experts)]
@@ -97,7 +97,9 @@ def test_weight_splat_uses_the_expert_geometry_at_t(scene, experts):
         frame = expert.frame(camera.time, camera)
         rows = expert.frame_rows(camera.time)
         mix = router.weights.mix[k] if rows is None else router.weights.mix[k][rows]
+        time = router.weights.time[k] if rows is None else router.weights.time[k][rows]
         torch.testing.assert_close(feats[k][:, :2], mix)
+        torch.testing.assert_close(feats[k][:, 2:], camera.time * time)  # t * w_time
         ref = rasterize(frame.with_colors(feats[k]), camera, antialiased=inputs[k].antialiased)
         torch.testing.assert_close(splat.extras[k], ref.image, atol=1e-5, rtol=0)
         torch.testing.assert_close(splat.alphas[k], ref.alpha, atol=1e-5, rtol=0)
@@ -182,6 +184,44 @@ def test_temperature_applies_in_training_only():
     cfg = RouterConfig.from_preset("code")
     assert cfg.train_temperature == 0.01 and cfg.eval_temperature == 1.0
     assert RouterConfig.from_preset("paper").train_temperature == 1.0
+
+
+@pytest.mark.parametrize("variant", ("vapr", "pixel"))
+def test_gates_divide_the_logits_by_the_training_temperature_in_training_only(scene, experts, variant):
+    """The code's ``softmax(logits / 0.01)`` while training, a plain softmax at evaluation."""
+    model = MoEGS(experts, config(variant, train_temperature=0.01))
+    with torch.no_grad():
+        for p in model.router.parameters():
+            p.normal_()
+    camera = scene.test[1].camera
+    for training, temperature in ((True, 0.01), (False, 1.0)):
+        model.train(training)
+        with torch.no_grad():
+            out = model.render(camera, scene.background)
+        torch.testing.assert_close(out.gates, torch.softmax(out.logits / temperature, dim=0))
+
+
+def test_router_logits_are_the_weight_map_plus_phi(scene, experts):
+    """``R'_k = w2D_k + Phi(w2D_dir_k, w2D_time_k, r)``, with the uncovered pixels' weights at the
+    background value: with Phi zeroed the logits are the splatted ``w`` map alone."""
+    model = MoEGS(experts, config("vapr"))
+    router = model.router
+    camera = scene.train[4].camera  # t = 0.5
+    with torch.no_grad():
+        for p in [*router.weights.mix, *router.weights.time]:
+            p.uniform_(-1, 1)
+        inputs = expert_inputs(experts, camera, scene.background)
+        feats = [router.features(k, e, camera.time) for k, e in enumerate(experts)]
+        splat = splat_experts(inputs, camera, extras=feats)
+        w2d = splat.extras[..., 0] + (1.0 - splat.alphas) * router.config.weight_background
+        assert (splat.alphas < 1e-3).any() and (splat.alphas > 0.5).any()  # both kinds of pixel
+        for p in router.phi.parameters():
+            p.zero_()
+        torch.testing.assert_close(router.logits(splat.extras, splat.alphas, camera), w2d)
+        for p in router.phi.parameters():
+            p.normal_()
+        residual = router.logits(splat.extras, splat.alphas, camera) - w2d
+        assert residual.abs().max() > 1e-3  # a non-zero Phi moves the logits off the weight map
 
 
 def test_bad_config_and_presets_are_named():

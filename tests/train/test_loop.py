@@ -51,6 +51,14 @@ def _assert_same(a, b):
         assert torch.equal(a[k], b[k]), k
 
 
+def test_a_steps_loss_is_the_mean_over_its_views(scene):
+    """A batch of views averages its losses (the originals' batched steps), so the learning rates mean the
+    same at every batch size."""
+    expert = _static(scene, batch_size=3)
+    result = train(expert, scene, progress=False, loss=lambda view, rgb, target, lam: 0.25 + 0.0 * rgb.sum())
+    assert result["final_loss"] == pytest.approx(0.25)
+
+
 @pytest.mark.parametrize("make", [_static, _mcmc], ids=["static", "mcmc"])
 def test_two_runs_are_identical(scene, make):
     e1, e2 = make(scene), make(scene)

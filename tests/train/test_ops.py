@@ -123,9 +123,15 @@ def test_remove_drops_rows_and_moments():
 def test_reset_opacity_caps_and_zeroes_opacity_moments_only():
     params, _, opts = _setup()
     means = params["means"]
+    with torch.no_grad():
+        params["opacities"][0] = torch.logit(torch.tensor(0.001))  # already below the cap: kept
+    above = torch.sigmoid(params["opacities"]) > 0.01
+    assert above.sum() >= 2
     ops.reset_opacity(params, opts, 0.01)
     assert params["means"] is means  # untouched tensors keep their identity
-    assert torch.sigmoid(params["opacities"]).max() <= 0.01 + 1e-6
+    opacity = torch.sigmoid(params["opacities"].detach())
+    assert float(opacity[0]) == pytest.approx(0.001, rel=1e-4)  # min(opacity, 0.01), not 0.01
+    torch.testing.assert_close(opacity[above], torch.full_like(opacity[above], 0.01))
     m, v, _ = _moments(opts, "opacities")
     assert (m == 0).all() and (v == 0).all()
     assert (_moments(opts, "means")[0] != 0).any()

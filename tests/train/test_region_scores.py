@@ -9,7 +9,7 @@ import torch
 
 from moegs.camera import Camera, intrinsics
 from moegs.data.scene import View
-from moegs.train.evaluate import RegionErrors, evaluate_renderer
+from moegs.train.evaluate import RegionErrors, evaluate_renderer, score_image
 
 
 def _view(key: str, target: torch.Tensor, regions: dict[str, torch.Tensor], time: float) -> View:
@@ -80,3 +80,16 @@ def test_component_images_are_scored_like_the_image():
     assert mixed["components"]["expert"]["ssim"] == alone["ssim"]
     assert mixed["psnr"] > alone["psnr"] + 20  # the main image is the exact target
     assert "components" not in alone
+
+
+def test_the_dynamic_region_is_where_the_mask_is_set():
+    target = 0.8 * torch.rand(32, 32, 3, generator=torch.Generator().manual_seed(0))
+    mask = torch.zeros(32, 32)
+    mask[:, :12] = 1.0  # the dynamic region: off by 0.01
+    image = target.clone()
+    image[:, :12] += 0.01
+    image[:, 12:] += 0.1  # the static region: off by 0.1
+    scores = score_image(image, target, mask)
+    assert scores["psnr_dynamic"] == pytest.approx(40.0, abs=1e-3)
+    assert scores["psnr_static"] == pytest.approx(20.0, abs=1e-3)
+    assert scores["ssim_dynamic"] > scores["ssim_static"]
