@@ -80,6 +80,14 @@ def test_counts_floors_and_routing():
         "| E-D3DGS | 18.00 | 0.04 | ≥ 25: missed | – |",
         "| best | 29.00 | | ≥ 28: met | |",
     ]
+    at_the_floors = motion_rows(
+        _summary([], experts=[_expert("ex4dgs", 25.0, 0.5), _expert("stg", 28.0, 0.5)])
+    )
+    assert at_the_floors == [
+        "| STG | 28.00 | 0.50 | ≥ 25: met | – |",
+        "| Ex4DGS | 25.00 | 0.50 | ≥ 25: met | – |",  # a floor is reached at its value
+        "| best | 28.00 | | ≥ 28: met | |",
+    ]
     cell = routing_cell(quick)
     assert "coherence 0.55 (≥ 0.6: missed)" in cell and "STG 75% / 10%" in cell
     assert routing_cell(_summary([])) == "not in this run"

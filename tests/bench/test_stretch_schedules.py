@@ -66,3 +66,10 @@ def test_unknown_expert_names_the_table():
 def test_a_run_length_below_one_is_refused():
     with pytest.raises(ValueError, match="iterations must be >= 1, got 0"):
         schedules.scaled_overrides("grid4d", "dnerf:mutant", 0)
+
+
+def test_a_stretched_value_is_the_nearest_step_and_at_least_one():
+    assert schedules._stretch(5, 1.9) == 10  # 9.5: rounded, not truncated
+    assert schedules._stretch(7, 1.3) == 9
+    assert schedules._stretch(3, 0.1) == 1  # a scheduled event never moves to step 0
+    assert schedules._stretch((5, None, 0, NEVER), 1.9) == (10, None, 0, NEVER)

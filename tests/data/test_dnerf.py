@@ -54,6 +54,22 @@ def test_background_composite(tmp_path, background, value):
     assert scene.points is None
 
 
+def test_a_wide_image_centres_its_principal_point_and_masks_the_object(tmp_path):
+    """``cx = W / 2``, ``cy = H / 2``, the focal from the width; the dynamic mask is the object (alpha)."""
+    truth = fx.write_dnerf(tmp_path, counts={"train": 2, "test": 1}, size=24, height=16)
+    scene = load_dnerf(tmp_path, num_points=0)
+    view = scene.train[0]
+    cam = view.camera
+    assert (cam.width, cam.height) == (24, 16) and view.image().shape == (16, 24, 3)
+    assert (cam.cx, cam.cy) == pytest.approx((12.0, 8.0))
+    assert cam.fx == pytest.approx(0.5 * 24 / math.tan(0.5 * truth["angle"])) and cam.fy == pytest.approx(
+        cam.fx
+    )
+    mask = view.mask()
+    assert mask.shape == (16, 24)
+    assert (mask[:, :12] == 0).all() and (mask[:, 12:] == 1).all()  # alpha 0 on the left half
+
+
 def test_half_resolution_and_val_split(tmp_path):
     fx.write_dnerf(tmp_path)
     scene = load_dnerf(tmp_path, resolution_scale=0.5, test_split="val", num_points=0)

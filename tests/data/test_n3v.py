@@ -98,7 +98,7 @@ def test_window_half_resolution_local_time(tmp_path):
     assert {v.camera.camera_id for v in ex.train} == {1}
 
 
-@pytest.mark.parametrize("style", ["4dgs", "stg"])
+@pytest.mark.parametrize("style", ["4dgs", "stg", "ffmpeg"])
 def test_extracted_frames(tmp_path, style):
     fx.write_n3v(tmp_path, cams=3, frames=4, extracted=style)
     scene = load_n3v(tmp_path, resolution_scale=1.0, frames=(1, 4), num_points=0)

@@ -50,6 +50,9 @@ def test_npz_points_window_local_time_and_scale(tmp_path):
     torch.testing.assert_close(scene.points.rgb, torch.full((50, 3), 0.25))
     assert scene.train[0].image().shape == (9, 16, 3)
     assert scene.train[0].mask().shape == (9, 16)
+    # the default global time keeps each frame's time in the whole sequence (t / T), window or not
+    windowed = load_panoptic(tmp_path, frames=(1, 3), num_points=0)
+    assert sorted({v.camera.time for v in windowed.train}) == pytest.approx([1 / 4, 2 / 4])
 
 
 def test_errors(tmp_path):

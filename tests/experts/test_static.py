@@ -38,6 +38,18 @@ def test_from_scene_and_thinning(scene):
         StaticExpert.from_scene(empty, StaticConfig())
 
 
+def test_thinning_keeps_each_points_colour_and_time():
+    """STG's per-frame clouds carry a time per point: a thinned cloud keeps the same rows of all three."""
+    from moegs.data.scene import PointCloud
+
+    index = torch.arange(20, dtype=torch.float32)
+    cloud = PointCloud(index[:, None].repeat(1, 3), (index / 20)[:, None].repeat(1, 3), "test", index / 40)
+    thin = thin_points(cloud, 7, seed=3)
+    assert len(thin) == 7 and thin.xyz[:, 0].diff().gt(0).all()  # a subset, in the original order
+    torch.testing.assert_close(thin.rgb[:, 0], thin.xyz[:, 0] / 20)
+    torch.testing.assert_close(thin.times, thin.xyz[:, 0] / 40)
+
+
 def test_param_groups_follow_3dgs(scene):
     expert = StaticExpert.from_scene(scene, StaticConfig())
     groups = {g.name: g for g in expert.param_groups()}

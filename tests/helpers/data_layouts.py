@@ -55,18 +55,26 @@ def _save(arr: np.ndarray, path: Path) -> None:
 
 # -- D-NeRF ------------------------------------------------------------------------------------------------
 def write_dnerf(
-    root: Path, counts: dict[str, int] | None = None, size: int = 16, angle: float = 0.69
+    root: Path,
+    counts: dict[str, int] | None = None,
+    size: int = 16,
+    angle: float = 0.69,
+    height: int | None = None,
 ) -> dict:
-    """``transforms_{split}.json`` + RGBA PNGs; the left half of every image has alpha 0."""
+    """``transforms_{split}.json`` + RGBA PNGs ``size`` wide, ``height`` (default ``size``) high; the left
+    half of every image has alpha 0."""
     from moegs.data.dnerf import w2c_to_blender
 
     counts = counts or {"train": 6, "val": 2, "test": 3}
+    height = size if height is None else height
     truth: dict = {"angle": angle, "size": size}
     for split, n in counts.items():
         frames, w2cs = [], ring_w2c(n, radius=4.0)
         times = [i / max(n - 1, 1) for i in range(n)]
         for i, (w2c, t) in enumerate(zip(w2cs, times, strict=True)):
-            rgba = np.concatenate([pattern(i, i, (size, size)), np.full((size, size, 1), 255, np.uint8)], -1)
+            rgba = np.concatenate(
+                [pattern(i, i, (size, height)), np.full((height, size, 1), 255, np.uint8)], -1
+            )
             rgba[:, : size // 2, 3] = 0
             rgba[:, : size // 2, :3] = 77  # hidden colour, must not leak through
             _save(rgba, root / split / f"r_{i:03d}.png")
@@ -156,7 +164,8 @@ def write_n3v(
 ) -> dict:
     """``poses_bounds.npy`` + ``camXX.mp4``. The hwf row says ``hwf_scale`` x the video size (as the
     released N3V files do for the full 2704x2028 capture) so the loader must rescale the focal.
-    ``extracted`` = ``"4dgs"`` or ``"stg"`` writes PNG frames instead of videos."""
+    ``extracted`` = ``"4dgs"``, ``"stg"`` (numbered from 0) or ``"ffmpeg"`` (``%04d``, numbered from 1) writes
+    PNG frames instead of videos."""
     from moegs.data.n3v import w2c_to_llff
 
     w2cs = ring_w2c(cams, radius=5.0)
@@ -169,7 +178,11 @@ def write_n3v(
             write_video(root / f"cam{c:02d}.mp4", c, frames, size)
         else:
             for j in range(frames):
-                sub = f"cam{c:02d}/images/{j:04d}.png" if extracted == "4dgs" else f"cam{c:02d}/{j}.png"
+                sub = {
+                    "4dgs": f"cam{c:02d}/images/{j:04d}.png",
+                    "ffmpeg": f"cam{c:02d}/images/{j + 1:04d}.png",
+                    "stg": f"cam{c:02d}/{j}.png",
+                }[extracted]
                 _save(pattern(c, j, size), root / sub)
     np.save(root / "poses_bounds.npy", np.stack(rows))
     return {"w2c": w2cs, "focal": focal_video, "size": size, "frames": frames}

@@ -115,6 +115,34 @@ def test_large_gaussians_pruned_only_after_first_reset_interval():
     assert run(110) == 1  # max scale 0.5 > 0.1 * extent
 
 
+def test_the_boundaries_of_3dgs_densification():
+    """3DGS ``train.py`` / ``densify_and_prune``: densify when ``iteration > densify_from_iter`` on the
+    interval; clone or split where the *mean* view-space gradient ``>=`` the threshold; large Gaussians
+    pruned once ``iteration > opacity_reset_interval``, "large" relative to the scene extent."""
+
+    def refine(step, grads_px, strategy, scene_scale=1.0, scales=(0.001, 0.001)):
+        params, opts = _params(list(scales), [0.5] * len(scales))
+        state = strategy.initialize_state(scene_scale=scene_scale)
+        renders = [_render(g, [True] * len(scales), size=(128, 128)) for g in grads_px]
+        strategy.step_post_backward(params, opts, state, step, {"renders": renders})
+        return state.get("last_refine"), params["means"].shape[0]
+
+    at = 2.0**-12  # exact in float32: pixel gradient 2^-18 times W / 2 = 64
+    strategy = ADCStrategy(densify_from=10, densify_every=10, reset_every=1000, grad_threshold=at)
+    one_view = [[[2.0**-18, 0.0], [2.0**-19, 0.0]]]
+    assert refine(10, one_view, strategy) == (None, 2)  # not yet at densify_from
+    assert refine(20, one_view, strategy)[0] == {"clone": 1, "split": 0, "prune": 0}  # == threshold
+    # two views of a batch: per view 2^-13 (the batch's mean loss halves it, the strategy doubles it back),
+    # accumulated 2^-12 over a count of 2: the mean 2^-13 stays under the threshold
+    two_views = [[[2.0**-20, 0.0], [0.0, 0.0]]] * 2
+    assert refine(20, two_views, strategy)[0]["clone"] == 0
+    big = dict(scales=(0.001, 0.5), grads_px=[[[0.0, 0.0]] * 2])
+    pruning = ADCStrategy(densify_from=0, densify_every=10, reset_every=100, prune_world_scale=0.1)
+    assert refine(100, strategy=pruning, **big)[1] == 2  # at the reset interval: not yet
+    assert refine(110, strategy=pruning, **big)[1] == 1  # 0.5 > 0.1 x extent 1
+    assert refine(110, strategy=pruning, scene_scale=10.0, **big)[1] == 2  # 0.5 < 0.1 x extent 10
+
+
 def test_screen_size_prune_is_off_by_default_as_in_3dgs():
     def run(size):
         params, opts = _params([0.001, 0.001], [0.5, 0.5])

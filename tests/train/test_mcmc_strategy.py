@@ -87,6 +87,16 @@ def test_dead_gaussians_move_within_their_model():
     assert params["model"].tolist() == [0, 0, 0, 1, 1, 1]
 
 
+def test_a_gaussian_exactly_at_the_opacity_floor_is_dead():
+    """3DGS-MCMC ``relocate_gs``: ``opacity <= 0.005`` marks a Gaussian dead."""
+    params, opts = _params([0.5, 0.005], [0, 0])
+    floor = float(torch.sigmoid(params["opacities"].detach())[1])  # 0.005 as float32 holds it
+    strategy = MCMCStrategy(cap_max=2, refine_from=0, refine_every=1, min_opacity=floor)
+    state = strategy.initialize_state(1.0)
+    strategy.step_post_backward(params, opts, state, 1, {})
+    assert state["last_refine"] == {"relocated": 1, "added": 0}
+
+
 def test_relocated_pair_shares_the_source_opacity():
     torch.manual_seed(0)
     params, opts = _params([0.64, 0.001], [0, 0])
