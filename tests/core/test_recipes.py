@@ -303,6 +303,34 @@ def test_world_frame_rules_stay_on_their_dataset():
     assert config_for("ex4dgs", "n3v:sear_steak").config.near == 4.0
 
 
+def test_quick_loads_real_scenes_at_its_resolution_and_stand_ins_at_their_own():
+    """A stand-in is generated at its preset's size; only a user's resolution applies to it."""
+    real = config_for("grid4d", "dnerf:mutant", "quick")
+    scale = real.config.train.resolution_scale
+    assert (
+        scale is not None
+        and scale < 1
+        and real.load_kwargs == {"background": "black", "resolution_scale": scale}
+    )
+    stand_in = config_for("grid4d", "synthetic:dnerf_like", "quick")
+    assert stand_in.config.train.resolution_scale == scale and stand_in.load_kwargs == {"background": "black"}
+    mine = config_for("grid4d", "synthetic:dnerf_like", "quick", overrides={"train.resolution_scale": 0.5})
+    assert mine.load_kwargs == {"background": "black", "resolution_scale": 0.5}
+
+
+@pytest.mark.parametrize(("expert", "scene"), [("static", "dnerf:mutant"), ("fourdgs", "n3v:coffee_martini")])
+def test_quick_moves_the_sh_band_interval_to_the_same_fraction_of_its_run(expert, scene):
+    """3DGS: one band per 1000 of 30k iterations; at quick's 600, one per 20."""
+    paper = config_for(expert, scene, "paper").config.train
+    quick = config_for(expert, scene, "quick").config.train
+    assert quick.sh_degree_interval == max(
+        1, round(paper.sh_degree_interval * quick.iterations / paper.iterations)
+    )
+    assert quick.sh_degree_interval < paper.sh_degree_interval
+    if expert == "static":
+        assert (paper.sh_degree_interval, paper.iterations, quick.sh_degree_interval) == (1000, 30_000, 20)
+
+
 def test_overrides_apply_last_and_are_recorded():
     recipe = config_for("grid4d", "dnerf:lego", "quick", overrides={"train.iterations": 7, "depth": 1})
     assert recipe.config.train.iterations == 7 and recipe.config.depth == 1

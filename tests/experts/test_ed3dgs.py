@@ -20,6 +20,7 @@ from moegs.experts.ed3dgs import (
     knots_at,
     ramp,
     sample_rows,
+    ssim_step,
     temporal_embedding,
 )
 from moegs.train.config import TrainConfig
@@ -161,6 +162,18 @@ def test_sampler_keeps_consecutive_cameras_apart_and_reuses_ssim_frames():
     assert len({c.frame for c in cams[49:55]}) == 1
 
 
+def test_multiview_ssim_steps_are_the_first_of_every_50_after_random_until():
+    """``train.py:125``: ``iteration >= random_until and iteration % 50 < num_multiview_ssim``."""
+    config = replace(ED3DGSConfig.quick(), random_until=100, multiview_ssim_iters=5)
+    assert [s for s in range(0, 260) if ssim_step(s, config)] == [
+        *range(100, 105),
+        *range(150, 155),
+        *range(200, 205),
+        *range(250, 255),
+    ]
+    assert not any(ssim_step(s, replace(config, multiview_ssim_iters=0)) for s in range(300))
+
+
 def test_monocular_batches_are_consecutive_pairs_of_training_images():
     """``train.py:110-113``: ``max(B // 2, 1)`` draws of ``f < ⌈n / 2⌉``, images ``2f`` then ``2f + 1``
     modulo the frame count (``scene.maxtime``): 5 images of 5 frames pair as (0, 1), (2, 3) and (4, 0)."""
@@ -194,6 +207,19 @@ def test_quick_keeps_one_view_a_step_on_hypernerf():
     assert config_for("ed3dgs", "hypernerf:chicken", "paper").config.consecutive_pairs
     quick = config_for("ed3dgs", "hypernerf:chicken", "quick").config
     assert not quick.consecutive_pairs and quick.train.batch_size == 1
+
+
+def test_the_error_table_is_saved_and_restored_with_the_expert():
+    """The per-camera, per-frame errors steer the sampler after a resume: they are state, not a cache."""
+    expert, scene = _expert(random_until=0)
+    with torch.no_grad():
+        expert.views.errors.fill_(0.1)
+        expert.views.errors[:, 1] = 0.7
+    state = expert.state_dict()
+    assert "views.errors" in state
+    again, _ = _expert(random_until=0)
+    again.load_state_dict(state)
+    torch.testing.assert_close(again.views.errors, expert.views.errors)
 
 
 def test_error_guided_frames_prefer_high_error():

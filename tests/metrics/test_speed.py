@@ -34,6 +34,21 @@ def test_times_only_the_render_with_warmup(monkeypatch):
     json.dumps(res.to_dict())
 
 
+def test_a_slow_view_or_repeat_does_not_move_the_median(monkeypatch):
+    """Medians over repeats, then over views: one stall (a page fault, another process) is not the speed."""
+    clock = [0]
+    monkeypatch.setattr(time, "perf_counter_ns", lambda: clock[0])
+    ms = {0: [2.0, 2.0, 9.0], 1: [4.0, 4.0, 4.0], 2: [30.0, 30.0, 30.0]}  # per view, per repeat
+
+    def render(view):
+        clock[0] += int(ms[view].pop(0) * 1e6) if ms[view] else 0
+        return torch.zeros(1)
+
+    res = measure_render(render, views=[0, 1, 2], warmup=0, repeats=3, device="cpu")
+    assert res.per_view_ms == [2.0, 4.0, 30.0]
+    assert res.ms_per_view_median == 4.0 and res.fps_median == pytest.approx(250.0)
+
+
 def test_device_inferred_from_nested_output():
     from dataclasses import dataclass
 

@@ -52,6 +52,21 @@ def test_router_learns_to_prefer_the_good_expert(scene, experts, tmp_path):
         assert (tmp_path / name).is_file()
 
 
+def test_the_router_trains_on_the_training_views_only(scene, experts, monkeypatch):
+    seen = []
+    render = MoEGS.render
+
+    def spy(self, camera, *args, **kwargs):
+        if self.training:
+            seen.append(camera)
+        return render(self, camera, *args, **kwargs)
+
+    monkeypatch.setattr(MoEGS, "render", spy)
+    train_router(experts, scene, cfg(iterations=6))
+    train_cameras = [v.camera for v in scene.train]
+    assert len(seen) == 6 and all(any(c is t for t in train_cameras) for c in seen)
+
+
 def test_param_groups_have_the_paper_rates(experts):
     groups = {g.name: g for g in router_param_groups(MoEGS(experts, cfg()))}
     assert set(groups) == {"w", "w_time", "phi"}
