@@ -168,6 +168,31 @@ def test_region_shares_count_winners_inside_and_outside_the_mask():
     assert shares["static"] == pytest.approx([50 / 70, 20 / 70])
 
 
+def test_the_routing_signal_averages_each_regions_winner_shares_over_views():
+    from bench.cells.moe import routing_signal
+
+    class Masked:
+        def __init__(self, mask):
+            self._mask = mask
+
+        def mask(self):
+            return self._mask
+
+    mask = torch.zeros(8, 8)
+    mask[:, :2] = 1.0  # the dynamic region: 16 of 64 pixels
+    gates = torch.zeros(2, 8, 8)
+    gates[0, :, :2] = 1.0  # expert 0 wins the dynamic region
+    gates[1, :, 2:] = 1.0  # expert 1 the static one
+    flipped = gates.flip(0)
+    signal = routing_signal([gates, flipped, gates], [Masked(mask), Masked(mask), Masked(None)])
+    assert signal["views"] == 3 and signal["coherence"] == pytest.approx(1.0)
+    assert signal["dynamic_share"] == pytest.approx([0.5, 0.5])  # the two masked views, averaged
+    one = routing_signal([gates], [Masked(mask)])
+    assert one["dynamic_share"] == pytest.approx([1.0, 0.0]) and one["static_share"] == pytest.approx(
+        [0.0, 1.0]
+    )
+
+
 def test_report_states_how_much_motion_the_experts_reproduce():
     from bench.report import motion_lines
 

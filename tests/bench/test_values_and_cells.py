@@ -166,3 +166,29 @@ def test_the_report_says_a_partly_computed_table_is_partly_reproduced(tmp_path, 
     assert status.startswith(
         "reproduced at quick preset (reduced scale) on real data (dnerf:mutant): 1/3 rows"
     )
+
+
+def test_summary_rows_keep_each_experts_full_dynamic_and_static_scores_apart(tmp_path, monkeypatch):
+    from bench.signals import expert_rows
+
+    monkeypatch.setattr(bench.plan, "resolve_scenes", _real("dnerf:mutant"))
+    plan = bench.plan.make_plan(["tab17"], get_preset("quick"))
+    ws = Workspace(tmp_path)
+    for s in plan.specs[0].slots:
+        if s.task is not None:
+            _write(
+                ws,
+                s,
+                psnr=30.0,
+                psnr_dynamic=25.0,
+                psnr_static=32.0,
+                ssim=0.9,
+                ssim_dynamic=0.8,
+                ssim_static=0.95,
+            )
+    rows = {r["expert"]: r for r in expert_rows(plan, ws)}
+    assert set(rows) == {"deformable", "grid4d"}
+    for row in rows.values():
+        assert row["scene"] == "dnerf:mutant"
+        assert row["psnr"] == {"full": 30.0, "dynamic": 25.0, "static": 32.0}
+        assert row["ssim"] == {"full": 0.9, "dynamic": 0.8, "static": 0.95}

@@ -408,3 +408,19 @@ def test_loads_through_real_dnerf_loader(tmp_path):
         assert torch.equal(gt.ids, r.ids)
         assert torch.equal(view.mask() > 0, gt.dynamic)
         assert gt.mask(categories=("static",)).any()
+
+
+def test_the_abrupt_hopper_reverses_its_spin_at_every_knot():
+    """Velocity and spin change at once at each knot: turning back by the angle it turned forward."""
+    from moegs.data.synthetic.scenes import TurningPath, _hopper
+
+    path = TurningPath(knots=(0.0, 0.5, 1.0), points=((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (1.0, 1.0, 0.0)))
+    hopper = _hopper(3, path, 0.1, Texture("checker", ((0.0, 0.0, 0.0), (1.0, 1.0, 1.0))), "test", spin=2.0)
+
+    def rotation(t: float) -> torch.Tensor:
+        (box,) = hopper.parts(t)
+        return box.rotation
+
+    assert not torch.allclose(rotation(0.25), rotation(0.0))
+    torch.testing.assert_close(rotation(0.75), rotation(0.25))  # 2 x 0.5 - 2 x 0.25 = 2 x 0.25 rad
+    torch.testing.assert_close(rotation(1.0), rotation(0.0))

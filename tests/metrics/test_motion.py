@@ -56,6 +56,19 @@ def test_matches_the_definition(gen):
     )
 
 
+def test_change_outside_the_dynamic_region_does_not_count(gen):
+    """A flickering background (lighting, exposure) is not motion: both sums stay inside the region."""
+    targets, masks = sequence(gen)
+    outside = masks.sum(0) == 0
+    flicker = torch.linspace(0.6, 1.0, 5)[:, None, None, None]
+    targets = torch.where(outside[None, ..., None], targets * flicker, targets)
+    renders = targets + 0.2 * torch.randn(targets.shape, generator=gen)
+    cams = [camera(t=t / 5) for t in range(5)]
+    assert score(renders, targets, masks, cams) == pytest.approx(
+        reference_r2(renders, targets, masks), abs=1e-9
+    )
+
+
 def test_a_static_render_scores_zero_and_the_truth_one(gen):
     targets, masks = sequence(gen)
     cams = [camera(t=t / 5) for t in range(5)]

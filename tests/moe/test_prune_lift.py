@@ -88,21 +88,45 @@ def test_threshold_pruning_and_bad_arguments(scene):
         prune(model(scene, "pixel"), scene, ratio=0.5)
 
 
-def test_responsibilities_match_a_brute_force_sum(scene):
-    """R for one Gaussian, summed by hand from renders with and without it."""
+@pytest.mark.parametrize("k", [0, 1])
+def test_responsibilities_match_a_brute_force_sum(scene, k):
+    """R for one Gaussian of expert ``k``, summed by hand from its render and expert ``k``'s gate."""
     m = model(scene, names=("static", "static"))
     view = scene.train[1]
     resp = compute_responsibilities(m, [view], scene.background)
     assert all(((r >= 0) & (r <= 1)).all() for r in resp)
     with torch.no_grad():
         gates = m.render(view.camera, scene.background).gates
-        frame = m.experts[0].frame(view.camera.time)
+        frame = m.experts[k].frame(view.camera.time)
         j = int(torch.argmax(rasterize(frame, view.camera, return_stats=True).info["contrib"]))
         one_hot = torch.zeros(len(frame), 1)
         one_hot[j] = 1.0
         contrib = rasterize(frame.with_colors(one_hot), view.camera).image[..., 0]  # T_j alpha_j per pixel
-        expected = (gates[0] * contrib).sum() / contrib.sum()
-    assert resp[0][j] == pytest.approx(float(expected), abs=1e-4)
+        expected = (gates[k] * contrib).sum() / contrib.sum()
+    assert resp[k][j] == pytest.approx(float(expected), abs=1e-4)
+
+
+def test_responsibilities_land_on_the_rows_of_the_views_time(scene):
+    """Per-frame 3DGS-MCMC: a view at t = 1 lifts onto the model of t = 1, not onto the model of t = 0."""
+    m = model(scene)
+    view = next(v for v in scene.train if v.camera.time == 1.0)
+    resp = compute_responsibilities(m, [view], scene.background)[1]
+    rows = m.experts[1].frame_rows(1.0)
+    others = torch.ones(len(resp), dtype=torch.bool)
+    others[rows] = False
+    assert (resp[rows] > 0).any() and (resp[others] == 0).all() and others.any()
+
+
+def test_responsibilities_are_saved_with_the_router(scene, tmp_path):
+    from moegs.io import save_checkpoint
+    from moegs.moe import load_moe
+    from moegs.moe.model import ROUTER_CHECKPOINT
+
+    m = model(scene)
+    resp = compute_responsibilities(m, scene.train[:2], scene.background)
+    save_checkpoint(tmp_path / ROUTER_CHECKPOINT, m.checkpoint_state())
+    loaded = load_moe(tmp_path, m.experts).responsibilities
+    assert loaded is not None and all(torch.equal(a, b) for a, b in zip(loaded, resp, strict=True))
 
 
 def test_lift_scales_opacity_and_needs_responsibilities(scene):
