@@ -49,16 +49,25 @@ def _describe_root(root: Path | None) -> str:
     return str(root)
 
 
+def _load_kwargs(meta: dict) -> dict:
+    """``load_scene`` arguments of a run's ``config.json``: those its training used. The rule of
+    ``moegs.recipes.Recipe.load_kwargs``, on the recorded values: the recipe's background, and the
+    training resolution, which a stand-in (generated at its own preset's size) takes only when the user
+    set it."""
+    recipe = meta.get("recipe") or {}
+    kwargs = {"background": recipe["background"]} if recipe.get("background") else {}
+    scale = meta["train"].get("resolution_scale")
+    user_set = "train.resolution_scale" in (recipe.get("overrides") or {})
+    if scale is not None and (not meta["scene"].startswith("synthetic:") or user_set):
+        kwargs["resolution_scale"] = scale
+    return kwargs
+
+
 def _load_scene(meta: dict):
     """The scene of a run's ``config.json``, loaded as it was for training."""
     from moegs.data import load_scene
 
-    recipe = meta.get("recipe") or {}
-    kwargs = {"background": recipe["background"]} if recipe.get("background") else {}
-    scale = meta["train"].get("resolution_scale")
-    if scale is not None and not meta["scene"].startswith("synthetic:"):
-        kwargs["resolution_scale"] = scale
-    return load_scene(meta["scene"], **kwargs)
+    return load_scene(meta["scene"], **_load_kwargs(meta))
 
 
 RUN_FIELDS = {"expert": str, "scene": str, "train": dict}

@@ -34,6 +34,37 @@ def test_list_says_where_it_looked_for_data(tmp_path, monkeypatch, capsys):
     assert "data root: none (set MOEGS_DATA;" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("scene", ["dnerf:mutant", "synthetic:dnerf_like"])
+@pytest.mark.parametrize("overrides", [{}, {"train.resolution_scale": 0.4}])
+def test_a_run_reloads_its_scene_as_its_training_loaded_it(scene, overrides):
+    """``eval`` / ``render`` / ``export`` read the run's ``config.json``: the loader arguments must be the
+    recipe's (``Recipe.load_kwargs``), or the scores are of other images than the run's own test views."""
+    from moegs.cli import _load_kwargs
+    from moegs.recipes import config_for
+
+    recipe = config_for("static", scene, "quick", overrides=overrides)
+    meta = {"scene": scene, "train": {"resolution_scale": recipe.config.train.resolution_scale}}
+    assert _load_kwargs({**meta, "recipe": recipe.provenance()}) == recipe.load_kwargs
+
+
+def test_export_writes_the_gaussians_at_the_time_asked(tmp_path, monkeypatch):
+    """``moegs export RUN --time t`` exports ``frame(t)`` (a deforming expert's Gaussians move with t)."""
+    import moegs.cli
+    import moegs.io
+
+    asked, written = [], []
+
+    class Expert:
+        def frame(self, t):
+            asked.append(t)
+            return f"frame at {t}"
+
+    monkeypatch.setattr(moegs.cli, "_load_run", lambda run: (tmp_path, None, None, Expert()))
+    monkeypatch.setattr(moegs.io, "export_ply", lambda frame, path: written.append((frame, path)) or path)
+    assert main(["export", str(tmp_path), "--time", "0.25"]) == 0
+    assert asked == [0.25] and written == [("frame at 0.25", tmp_path / "point_cloud_t0.250.ply")]
+
+
 def test_unknown_expert_lists_valid_names(capsys):
     assert main(["train", "--expert", "nope", "--scene", SCENE]) == 2
     err = capsys.readouterr().err
@@ -96,9 +127,10 @@ def test_train_eval_render_export(tmp_path, monkeypatch, capsys):
     assert config["recipe"]["overrides"]["train.iterations"] == 4
 
     assert main(["eval", str(run), "--profile", "clean"]) == 0
-    assert json.loads((run / "eval-clean.json").read_text())["psnr"] == pytest.approx(
-        metrics["test"]["psnr"], abs=1.0
-    )
+    evaluated = json.loads((run / "eval-clean.json").read_text())
+    # the same views at the resolution the run trained at (the user's 0.4 of the stand-in): the same PSNR
+    assert [v["key"] for v in evaluated["per_view"]] == [v["key"] for v in metrics["test"]["per_view"]]
+    assert evaluated["psnr"] == pytest.approx(metrics["test"]["psnr"], abs=1e-6)
     assert main(["render", str(run)]) == 0
     renders = run / "renders"
     assert (renders / "video.mp4").stat().st_size > 0 and (renders / "00000.png").is_file()
