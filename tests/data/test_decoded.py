@@ -107,9 +107,13 @@ def test_large_images_and_missing_files_bypass_the_cache(cache, rgba, monkeypatc
 
 def test_cache_root_is_never_the_install_tree(tmp_path, monkeypatch):
     monkeypatch.delenv("MOEGS_CACHE", raising=False)
-    monkeypatch.setattr(paths, "_REPO", tmp_path / "site-packages")  # an installed copy: no pyproject.toml
+    installed = tmp_path / "site-packages"
+    installed.mkdir()
+    monkeypatch.setattr(paths, "_REPO", installed)  # an installed copy: a folder without pyproject.toml
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     assert paths.cache_root() == tmp_path / "xdg" / "moegs"
+    (installed / "pyproject.toml").write_text("")  # a source checkout keeps its cache beside the code
+    assert paths.cache_root() == installed / ".cache"
 
 
 def test_memory_cache_is_bounded_by_bytes_and_items():

@@ -58,6 +58,18 @@ def test_round_trip(tmp_path, degree):
         torch.testing.assert_close(getattr(back, name), getattr(frame, name), rtol=1e-5, atol=1e-6)
 
 
+def test_raw_quaternions_of_a_3dgs_file_are_normalised(tmp_path):
+    """3DGS writes its raw ``_rotation``; the activated frame has unit quaternions."""
+    path = export_ply(_frame(), tmp_path / "g.ply")
+    data = PlyData.read(str(path))["vertex"].data
+    for i in range(4):
+        data[f"rot_{i}"] *= 3.0
+    PlyData([PlyElement.describe(data, "vertex")]).write(str(tmp_path / "raw.ply"))
+    back = read_ply(tmp_path / "raw.ply")
+    torch.testing.assert_close(back.quats, read_ply(path).quats)
+    torch.testing.assert_close(back.quats.norm(dim=-1), torch.ones(len(back)))
+
+
 def test_rgb_frame_becomes_dc_only(tmp_path):
     frame = _frame()
     rgb = frame.with_colors(torch.rand(len(frame), 3))

@@ -36,3 +36,24 @@ def test_winner_share_ignores_uniform_pixels():
 
     gates = torch.tensor([[[0.5, 0.9, 0.2, 0.5]], [[0.5, 0.1, 0.8, 0.5]]])
     assert winner_shares(gates) == [0.25, 0.25]
+
+
+def test_a_finished_router_is_reused_only_for_the_same_config(tmp_path):
+    """``moegs route`` skips a completed run of the same router config; another length trains again
+    (only the checkpoint interval may differ)."""
+    from dataclasses import replace
+
+    from moegs.io import to_dict, write_json
+    from moegs.moe import RouterConfig
+    from moegs.route import finished_router
+
+    config = RouterConfig.from_preset("quick")
+    write_json(tmp_path / "config.json", {"router": to_dict(config)})
+    assert finished_router(tmp_path, config) is None  # no metrics yet
+    write_json(tmp_path / "metrics.json", {"completed": True, "step": config.iterations})
+    assert finished_router(tmp_path, config) == {"completed": True, "step": config.iterations}
+    assert finished_router(tmp_path, replace(config, checkpoint_every=7)) is not None
+    assert finished_router(tmp_path, replace(config, iterations=config.iterations + 1)) is None
+    assert finished_router(tmp_path, replace(config, variant="pixel")) is None
+    write_json(tmp_path / "metrics.json", {"completed": False})
+    assert finished_router(tmp_path, config) is None

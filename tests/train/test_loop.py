@@ -77,11 +77,13 @@ def test_resume_continues_exactly(scene, make, tmp_path):
     part = make(scene, checkpoint_every=10)
     r_part = train(part, scene, out_dir=tmp_path / "part", progress=False, stop_after=25)
     assert not r_part["completed"] and r_part["test"] is None
-    assert load_checkpoint(tmp_path / "part" / CHECKPOINT_NAME)["step"] == 25
+    saved = load_checkpoint(tmp_path / "part" / CHECKPOINT_NAME)
+    assert saved["step"] == 25 and saved["seconds"] == r_part["train_seconds"] > 0  # time so far, kept
 
     resumed = make(scene, checkpoint_every=10)  # a fresh process would rebuild the expert like this
     r_res = train(resumed, scene, out_dir=tmp_path / "part", progress=False)
     assert r_res["resumed_from"] == 25 and r_res["completed"]
+    assert r_res["train_seconds"] > r_part["train_seconds"]  # the whole run's training time, both parts
     _assert_same(_state(full), _state(resumed))
     assert (
         load_checkpoint(tmp_path / "full" / CHECKPOINT_NAME)["history"]
