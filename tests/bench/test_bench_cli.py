@@ -74,3 +74,16 @@ def test_the_other_bench_tools_check_their_numbers(module, argv, message, capsys
     with pytest.raises(SystemExit) as exit_info:
         importlib.import_module(f"bench.{module}").main(argv)
     assert exit_info.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_the_executor_gets_the_jobs_timeout_and_slurm_settings(monkeypatch):
+    import bench.executors
+    from bench.all import _executor, build_parser
+
+    made = []
+    monkeypatch.setattr(bench.executors, "make_executor", lambda kind, **kwargs: made.append((kind, kwargs)))
+    argv = ["--jobs", "3", "--timeout", "90", "--slurm-time", "30", "--slurm-cpus", "4", "--slurm-gpus", "1"]
+    _executor(build_parser().parse_args(argv))
+    ((kind, kwargs),) = made
+    assert kwargs["jobs"] == 3 and kwargs["timeout"] == 90.0 and kwargs["threads"] == 4
+    assert kwargs["parameters"] == {"timeout_min": 30, "cpus_per_task": 4, "gpus_per_node": 1}

@@ -151,3 +151,19 @@ def test_tasks_hash_their_own_expert_and_loader_only():
     assert deformable.code_version != moe.code_version
     with pytest.raises(ValueError, match="unknown dataset 'nope'; valid datasets"):
         dataset_module("nope")
+
+
+@pytest.mark.parametrize(
+    ("module", "hashed"),
+    [
+        ("moegs.experts.stg", True),
+        ("bench.worker", True),
+        ("bench.cells.moe", True),
+        ("bench.schedules", True),  # stretches the quick schedules a standard cell trains with
+        ("bench.report", False),
+        ("bench.plan", False),
+        ("bench.schedulesx", False),
+    ],
+)
+def test_the_harness_modules_that_compute_numbers_are_hashed(module, hashed):
+    assert codedeps.is_hashed(module) is hashed

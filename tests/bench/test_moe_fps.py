@@ -30,6 +30,20 @@ def test_times_each_expert_and_the_moe_both_ways(tmp_path):
     assert moe_fps.main(["--json", str(out), "--from-json"]) == 0
 
 
+def test_the_moe_is_timed_in_separate_passes_and_in_one(tmp_path, monkeypatch):
+    from moegs.moe.model import MoEGS
+
+    modes, render = [], MoEGS.render
+
+    def spy(self, camera, background, *args, single_pass=None, **kwargs):
+        modes.append(single_pass)
+        return render(self, camera, background, *args, single_pass=single_pass, **kwargs)
+
+    monkeypatch.setattr(MoEGS, "render", spy)
+    assert moe_fps.main([*TINY, *TWO, "--json", str(tmp_path / "fps.json")]) == 0
+    assert modes and set(modes) == {False, True} and modes.index(True) > modes.index(False)
+
+
 def test_a_failing_expert_is_reported_and_the_moe_says_why(tmp_path, monkeypatch):
     def broken(*args, **kwargs):
         raise RuntimeError("no kernel for this device")

@@ -74,6 +74,21 @@ def test_a_cpu_run_writes_json_and_a_table_with_a_column_per_repeat(tmp_path):
     assert "old" not in text and "speed-up, run 2" in text and "2 runs" in text
 
 
+def test_the_target_is_met_only_if_every_run_meets_it():
+    from bench.rasterizer import SINGLE_PASS_TARGET
+
+    def run(speedup):
+        case = {"n": 5000, "res": 128, "backward": False, "speedup": speedup, "speedup_p10": speedup,
+                "speedup_p90": speedup, "separate_ms": 3.0, "single_ms": 1.0}  # fmt: skip
+        header = {"backend": "torch", "device": "cpu", "rounds": 10, "warmup": 1, "date": "d", "torch": "t"}
+        return {"cases": [case], "experts": 3, **header}
+
+    fast, slow = run(SINGLE_PASS_TARGET + 0.5), run(SINGLE_PASS_TARGET - 0.5)
+    assert "(median): met" in single_pass.markdown(fast, [fast])
+    assert "(median): MISSED" in single_pass.markdown(fast, [slow])  # a repeat below the target
+    assert "(median): MISSED" in single_pass.markdown(slow, [fast])
+
+
 @pytest.mark.parametrize("sizes", ["", "5000", "5000:0", "a:b", "1:2:3"])
 def test_bad_sizes_are_named(sizes, capsys):
     with pytest.raises(SystemExit):

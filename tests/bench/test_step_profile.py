@@ -26,14 +26,20 @@ def test_nested_time_goes_to_the_inner_category_only(monkeypatch):
     assert sum(timers.seconds.values()) == 11.0  # every second counted once
 
 
-def test_breakdown_covers_the_step_and_restores_what_it_wrapped(tmp_path, capsys):
+def test_breakdown_covers_the_step_and_restores_what_it_wrapped(tmp_path, capsys, monkeypatch):
     from moegs.data.scene import View
     from moegs.render import pipeline
+    from moegs.train.loop import TrainingRun
 
+    steps, iteration = [], TrainingRun.iteration
+    monkeypatch.setattr(
+        TrainingRun, "iteration", lambda run, step: steps.append(step) or iteration(run, step)
+    )
     before = (View.image, pipeline.project, pipeline._composite)
     out = tmp_path / "profile.json"
     assert profile.main(["--expert", "static", "--scene", "synthetic:dnerf_like", "--steps", "4",
                          "--warmup", "2", "--json", str(out)]) == 0  # fmt: skip
+    assert steps == [1, 2, 3, 4, 5, 6]  # the warm-up steps, then the timed ones: each step once, in order
     assert (View.image, pipeline.project, pipeline._composite) == before
     (result,) = json.loads(out.read_text())
     assert set(result["share"]) == set(profile.CATEGORIES) and result["steps"] == [3, 6]

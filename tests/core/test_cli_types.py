@@ -31,7 +31,15 @@ from moegs.cli_types import (
         (unit_time, ["0", "0.5", "1"], ["-0.1", "1.0001", "nan"]),
         (unit_scale, ["1", "0.125"], ["0", "1.5", "nan"]),
     ],
-    ids=lambda v: getattr(v, "__name__", None) if callable(v) else None,
+    ids=[
+        "positive_int",
+        "non_negative_int",
+        "positive_float",
+        "non_negative_float",
+        "seed",
+        "unit_time",
+        "unit_scale",
+    ],
 )
 def test_each_type_accepts_its_range_and_refuses_the_rest(parse, accepted, refused):
     for text in accepted:
