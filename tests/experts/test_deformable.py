@@ -94,6 +94,11 @@ def test_ast_noise_schedule_and_gating(scene):
     assert torch.equal(time, torch.full_like(time, float(time[0])))  # one draw shared by every Gaussian
     expert.eval()
     assert torch.equal(expert.deltas(0.5)["dx"], expert.deltas(0.5)["dx"])  # no noise at evaluation
+    # the noise anneals to zero over the config's time_noise_steps
+    short = DeformableExpert.from_scene(scene, _small_config(warm_up=0, time_noise=True, time_noise_steps=10))
+    short.train()
+    short.on_step(10)
+    assert torch.equal(short.deltas(0.5)["dx"], short.deltas(0.5)["dx"])
 
 
 def test_learning_rates_follow_the_original(scene):

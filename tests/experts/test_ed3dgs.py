@@ -63,6 +63,9 @@ def test_embedding_smoothness_by_hand():
     z = torch.tensor([[0.0, 0.0], [3.0, 4.0]])
     value = embedding_smoothness(z, torch.tensor([[1], [0]]), torch.tensor([[1.0], [0.25]]))
     assert value.item() == pytest.approx((5.0 + 2.5) / 2)
+    # two neighbours each: a mean over Gaussians and neighbours, not a sum over neighbours
+    value = embedding_smoothness(z, torch.tensor([[1, 1], [0, 0]]), torch.tensor([[1.0, 0.25], [1.0, 1.0]]))
+    assert value.item() == pytest.approx((5.0 + 2.5 + 5.0 + 5.0) / 4)
 
 
 def test_knn_on_a_line():
@@ -77,6 +80,8 @@ def test_buggy_temporal_tv_by_hand():
     first = torch.tensor([[1.0 - 3.0], [3.0 - 3.0]])
     second = first[1:] - first[1]
     assert buggy_temporal_tv(w).item() == pytest.approx(second.square().mean().item())
+    # K = 4: first = w[1:] - w[3] = (-5, -3, 0); second = first[1:] - first[2] = (-3, 0)
+    assert buggy_temporal_tv(torch.tensor([[0.0], [1.0], [3.0], [6.0]])).item() == pytest.approx(4.5)
 
 
 def monocular(scene):
@@ -137,8 +142,57 @@ def test_camera_time_offsets_train_per_camera_and_average_at_test():
         0.3
     )
     assert float(expert.fields.time_offset(None, training=False).detach()) == pytest.approx(0.2)
+    at_test = expert.fields.time_offset(scene.train[2].camera, training=False)  # the mean, whichever camera
+    assert float(at_test.detach()) == pytest.approx(0.2)
     mono = ED3DGSExpert.from_scene(monocular(tiny_scene()), ED3DGSConfig.quick())
     assert mono.fields.offsets is None and mono.views is None
+
+
+def test_regularization_by_hand():
+    """``sigmoid(mean opacity logit)`` x ``opacity_reg`` plus the embedding smoothness over each Gaussian's
+    ``k`` nearest neighbours weighted ``exp(-2000 d²)`` (``train.py``, ``weighted_l2_loss_v2``)."""
+    expert, _ = _expert(smoothness_neighbours=3, temporal_tv=0.0)
+    c, s = expert.config, expert.splats
+    with torch.no_grad():
+        s["opacities"].copy_(torch.linspace(-1.0, 3.0, len(s["opacities"])))  # sigmoid of mean != mean of
+        s["embedding"].normal_()
+    means = s["means"].detach().double()
+    d2 = (means[:, None] - means[None]).square().sum(-1)
+    d2.fill_diagonal_(float("inf"))
+    near, idx = d2.topk(3, largest=False)  # brute force in float64, not the KD-tree
+    weights = torch.exp(-c.smoothness_falloff * near.float())
+    diff = s["embedding"][:, None, :] - s["embedding"][idx]
+    smooth = torch.sqrt(diff.square().sum(-1) * weights + 1e-20).mean()
+    expected = c.opacity_reg * torch.sigmoid(s["opacities"].mean()) + c.smoothness_reg * smooth
+    assert c.smoothness_falloff == 2000.0 and c.opacity_reg > 0 and c.smoothness_reg > 0
+    torch.testing.assert_close(expert.regularization(1), expected, rtol=1e-5, atol=1e-7)
+
+
+def test_the_deformation_learning_rate_decays_between_scaled_ends():
+    from moegs.train.schedules import group_lr
+
+    expert, _ = _expert()
+    c, sc = expert.config, expert.spatial_lr_scale
+    group = next(g for g in expert.param_groups() if g.name == "deformation")
+    assert sc != 1.0
+    assert group_lr(group, 0) == pytest.approx(c.deformation_lr * sc)
+    assert group_lr(group, c.deformation_lr_max_steps) == pytest.approx(c.deformation_lr_final * sc)
+
+
+def test_multiview_ssim_steps_add_half_a_dssim_and_release_their_frame():
+    """``train.py``: ``λ (1 - SSIM) / 2`` on the SSIM iterations; after them the kept frame is released."""
+    from moegs.train.losses import dssim
+
+    expert, scene = _expert(random_until=0, multiview_ssim_iters=5, lambda_ssim=1.0)
+    view = scene.train[0]
+    g = torch.Generator().manual_seed(0)
+    rgb, target = torch.rand(32, 32, 3, generator=g), torch.rand(32, 32, 3, generator=g)
+    assert float(expert.observe(50, view, rgb, target, None)) == pytest.approx(float(dssim(rgb, target)) / 2)
+    assert expert.observe(55, view, rgb, target, None) is None
+    expert.select_views(54, scene.train, 1, g)
+    assert int(expert.views.kept_frame) >= 0  # step 54 keeps its frame for step 55
+    expert.select_views(55, scene.train, 1, g)
+    assert int(expert.views.kept_frame) == -1
 
 
 def test_every_parameter_in_exactly_one_group():

@@ -205,7 +205,7 @@ def test_growth_arms_a_conversion_that_runs_after_the_step_of_the_first_view_of_
     assert int(expert.keyframes) == 7  # ⌈(10 + 24 + 1) / 10⌉ + 3
     cameras = _recording_conversions(expert)
     g = torch.Generator().manual_seed(0)
-    lengths, keyframes, converted, expected, armed = {}, {}, [], [], False
+    lengths, keyframes, converted, expected, armed, need = {}, {}, [], [], False, {}
     for step in range(1, 41):
         picks = expert.select_views(step, scene.train, 2, g)
         lengths[step], keyframes[step] = float(expert.duration), int(expert.keyframes)
@@ -214,6 +214,7 @@ def test_growth_arms_a_conversion_that_runs_after_the_step_of_the_first_view_of_
         if armed and newest:
             due, armed = newest[0], False
         expert.after_update(step, {})
+        need[step] = bool(expert.need_extract)
         if due is not None:
             expected.append(step)
             assert cameras[-1] is scene.train[due].camera
@@ -226,6 +227,8 @@ def test_growth_arms_a_conversion_that_runs_after_the_step_of_the_first_view_of_
     assert [lengths[s] for s in (10, 11, 16, 21, 26, 31, 40)] == [10, 20, 30, 40, 42, 42, 42]
     assert [keyframes[s] for s in (11, 16, 21, 26)] == [7, 8, 9, 9]
     assert converted == expected and converted[0] == 3  # armed after step 2, due with step 3's view
+    # need_extract: spent at 2, set again by the growths of 15 and 20, spent at 17 and 22
+    assert [need[s] for s in (1, 2, 15, 16, 17, 20, 22)] == [True, False, True, True, False, True, False]
 
 
 def test_growth_extrapolates_keyframes_and_adjusts_the_temporal_opacity_like_expand_duration():

@@ -104,6 +104,7 @@ def test_param_groups_per_stage(scene):
     assert all(g.start_step == 3 for g in groups.values())  # every schedule restarts with the fine stage
     assert group_lr(groups["grid"], 4) == pytest.approx(1.6e-3 * extent, rel=1e-2)
     assert group_lr(groups["deformation"], 3 + 600) == pytest.approx(1.6e-6 * extent)
+    assert group_lr(groups["grid"], 3 + 600) == pytest.approx(1.6e-5 * extent)  # both ends scaled
     assert group_lr(groups["means"], 3 + 600) == pytest.approx(1.6e-6 * extent)
 
 

@@ -36,6 +36,9 @@ def test_attention_range_and_identity_offset():
         plain = Grid4DNetwork(4, 6, width=8, directional=False).attention(torch.randn(50, 4))
     assert -1 < float(a.min()) < 0 < float(a.max()) < 1  # directional: 2 sigmoid - 1
     assert 0 < float(plain.min()) and float(plain.max()) < 1
+    with torch.no_grad():  # ReLU(Linear(h_t)) * a: the temporal features are non-negative
+        h = net.temporal_mlp(torch.randn(100, 6))
+    assert float(h.min()) == 0.0 and float(h.max()) > 0
     with torch.no_grad():
         for p in net.heads.parameters():
             p.zero_()
@@ -83,6 +86,7 @@ def test_perturbation_loss_subsample_and_value():
     moved, original = inputs
     offsets = moved - original
     assert (offsets.abs() <= torch.tensor([0.1, 0.2, 0.3])).all()
+    assert (offsets < 0).any() and (offsets > 0).any()  # U(-p, p), both ways
     # the squared norm of each row's change (summed over channels), averaged over rows
     assert float(value) == pytest.approx(float((2.0 * offsets).square().sum(-1).mean()))
 
@@ -101,6 +105,19 @@ def test_warm_up_then_deltas_in_activated_space(scene):
     # MoDE's Grid4D member adds dr to the raw canonical quaternion (r_can + d_rotation)
     raw = expert.deform({**s, "quats": 2 * s["quats"]}, 0.3, raw_quats=True)
     assert torch.allclose(raw.quats, 2 * s["quats"] + d["drot"])
+
+
+def test_positions_learn_through_the_warp_and_not_through_the_hash_grids(scene):
+    """Grid4D's encoder reads ``xyz.detach()``: the canonical positions get gradients only through the
+    rigid warp of themselves."""
+    expert = _expert(scene, warm_up=0)
+    expert.on_step(1)
+    seen = []
+    hook = expert.fields.register_forward_pre_hook(lambda module, args: seen.append(args[0].requires_grad))
+    expert.frame(0.3).means.sum().backward()
+    hook.remove()
+    assert seen == [False]
+    assert expert.splats["means"].grad is not None and expert.splats["means"].grad.abs().sum() > 0
 
 
 def test_zero_heads_give_the_canonical_frame(scene):

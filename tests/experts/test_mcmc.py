@@ -28,6 +28,10 @@ def test_key_times():
     times = torch.linspace(0, 1, 10)
     torch.testing.assert_close(key_times(times, None), times)
     torch.testing.assert_close(key_times(times, 2), torch.stack([times[:5].mean(), times[5:].mean()]))
+    # 10 times in 4 bins: sizes 3, 3, 2, 2 (as even as possible), never fewer bins than asked
+    expected = torch.stack([times[:3].mean(), times[3:6].mean(), times[6:8].mean(), times[8:].mean()])
+    torch.testing.assert_close(key_times(times, 4), expected)
+    assert len(key_times(times[:7], 6)) == 6
 
 
 def test_one_model_per_time(scene):

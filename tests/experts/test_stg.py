@@ -170,6 +170,71 @@ def test_densification_randomises_new_time_centres_and_caps_events():
     assert state["last_refine"]["clone"] + state["last_refine"]["split"] == n
 
 
+def _late_strategy(**kw) -> STGStrategy:
+    """An STG strategy past densification, with only the late events ``kw`` switches on."""
+    off = {"densify_until": 0, "prune_z_below": None, "z_prune_every": None, "omega_mask_from": None,
+           "bbox_prune_at": None, "reset_at": (), "guided_from": None}  # fmt: skip
+    return STGStrategy(**{**off, **kw})
+
+
+def test_the_omega_mask_keeps_rotation_velocity_for_moving_gaussians_only():
+    """``helper_train.py:196-199``: at ``omega_mask_from``, Gaussians moving faster than 0.3 (the velocity
+    ``b1``), of size in (0.2, 0.6) and opacity > 0.7 keep omega; then omega learns only for them and the
+    static rotation only for the others."""
+    params = STGExpert.from_scene(tiny_scene(num_frames=2), STGConfig(max_init_points=40)).splats
+    with torch.no_grad():
+        params["motion"].zero_()
+        params["motion"][0, 0:3] = torch.tensor([0.2, 0.2, 0.0])  # velocity 0.4: moving
+        params["motion"][1, 3:6] = 1.0  # accelerating from rest: not moving
+        params["scales"].fill_(math.log(0.4))
+        params["opacities"].fill_(math.log(0.9 / 0.1))
+        params["omega"].fill_(1.0)
+    strategy = _late_strategy(omega_mask_from=10)
+    state = strategy.initialize_state(1.0)
+    strategy.step_post_backward(params, {}, state, 10, {})
+    assert params["omega"][0].tolist() == [1.0] * 4 and params["omega"][1].tolist() == [0.0] * 4
+    params["omega"].grad, params["quats"].grad = (
+        torch.ones_like(params["omega"]),
+        torch.ones_like(params["quats"]),
+    )
+    strategy.step_post_backward(params, {}, state, 11, {})
+    assert params["omega"].grad[0].tolist() == [1.0] * 4 and params["omega"].grad[1].tolist() == [0.0] * 4
+    assert params["quats"].grad[0].tolist() == [0.0] * 4 and params["quats"].grad[1].tolist() == [1.0] * 4
+
+
+def test_late_z_pruning_runs_halfway_through_each_period():
+    """``helper_train.py:223-226`` (N3V): after densification, at ``k every + every / 2``."""
+
+    def left_after(step):
+        params = STGExpert.from_scene(tiny_scene(num_frames=2), STGConfig(max_init_points=40)).splats
+        with torch.no_grad():
+            params["means"][:, 2] = 10.0
+            params["means"][0, 2] = 1.0  # in front of the z = 4.5 plane: pruned when the event runs
+        strategy = _late_strategy(prune_z_below=4.5, z_prune_every=1000)
+        strategy.step_post_backward(params, {}, strategy.initialize_state(1.0), step, {})
+        return params["means"].shape[0]
+
+    assert [left_after(s) for s in (1000, 1499, 1500, 2500)] == [40, 40, 39, 39]
+
+
+def test_a_guided_event_waits_more_than_the_gap_after_the_last():
+    scene = tiny_scene(num_frames=2)
+    params = STGExpert.from_scene(scene, STGConfig(max_init_points=40)).splats
+    strategy = _late_strategy(guided_from=100, guided_gap=100)
+    view = scene.train[0]
+    image = view.image()
+    info = {"views": [{"camera": view.camera, "rgb": image, "target": image}]}  # SSIM 1: counted, no points
+
+    def events_at(step):
+        state = strategy.initialize_state(1.0)
+        selected = [str(view.camera.camera_id), "other"]
+        state["guided"].update(phase="selected", selected=selected, last=1000)
+        strategy.step_post_backward(params, {}, state, step, info)
+        return state["guided"]["events"]
+
+    assert [events_at(s) for s in (1099, 1100, 1101)] == [0, 0, 1]
+
+
 def test_segments_answer_global_time_with_local_models():
     scene = with_times(tiny_scene(num_frames=4, cameras=2))
     part = segment_scene(scene, 0.5, 1.0 + 1 / 3)
