@@ -1,8 +1,11 @@
 """4DGaussians: field sizes, coarse/fine stages, raw-space deltas, plane regularisers, schedules, strategy."""
 
+import math
+
 import pytest
 import torch
 from helpers.scenes import tiny_scene
+from torch import nn
 
 from moegs.experts.fourdgs import FourDGSConfig, FourDGSExpert, FourDGSField, FourDGSStrategy
 from moegs.experts.gaussian_params import activate, init_splats
@@ -91,6 +94,20 @@ def test_regulariser_is_the_weighted_sum_in_the_fine_stage(scene):
     off = _expert(scene, coarse=0, time_smoothness_weight=0.0)
     off.on_step(1)
     assert float(off.regularization(1)) == 0.0  # the original skips all three when this weight is 0
+
+
+def test_the_deformation_mlp_starts_xavier_uniform(scene):
+    """``initialize_weights``: Xavier-uniform on every Linear of the feature MLP and the heads (PyTorch's
+    default would be bounded by ``1 / sqrt(fan_in)``, well inside Xavier's bound for these sizes)."""
+    field = _expert(scene).fields
+    linears = [
+        m for part in (field.feature_out, field.heads) for m in part.modules() if isinstance(m, nn.Linear)
+    ]
+    assert len(linears) >= 4
+    for m in linears:
+        bound = math.sqrt(6.0 / (m.in_features + m.out_features))
+        assert 1.0 / math.sqrt(m.in_features) < 0.9 * bound  # the two inits are told apart
+        assert 0.9 * bound < float(m.weight.detach().abs().max()) <= bound
 
 
 def test_param_groups_per_stage(scene):

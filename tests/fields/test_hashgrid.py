@@ -1,5 +1,7 @@
 """Grid4D hash encoding in pure torch: level geometry, dense/hashed indices, smoothstep, range, gradients."""
 
+import math
+
 import pytest
 import torch
 
@@ -145,3 +147,17 @@ def test_shape_errors():
         _grid()(torch.zeros(4, 2))
     with pytest.raises(ValueError, match="base_resolution"):
         HashGrid(3, 2, 2, base_resolution=(4, 4))
+
+
+def test_dense_levels_of_a_non_cubic_grid_give_every_vertex_its_own_row():
+    """Row-major strides ``(1, r_x, r_x r_y)`` from each level's own per-axis resolutions: on an (x, y, t)
+    grid of unequal sides no two vertices of a dense level share a row."""
+    g = HashGrid(3, 2, 2, base_resolution=(4, 6, 3), desired_resolution=(8, 12, 5), log2_hashmap_size=16)
+    assert bool(g.dense.all())
+    for level in range(2):
+        r = g.resolutions[level].tolist()
+        assert len(set(r)) == 3  # unequal sides
+        assert g.strides[level].tolist() == [1, r[0], r[0] * r[1]]
+        vertices = torch.cartesian_prod(*(torch.arange(n) for n in r))  # every vertex (x, y, t)
+        rows = (vertices * g.strides[level]).sum(-1)
+        assert len(set(rows.tolist())) == math.prod(r) == int(g.sizes[level])
