@@ -6,6 +6,7 @@ import json
 
 import pytest
 import torch
+from helpers.cells import staged_scenes, write_ok_result
 
 from bench.claims import (
     FAILED,
@@ -260,29 +261,6 @@ def test_report_states_what_the_cells_cost():
     assert compute_markdown({}) == [] and compute_markdown({"builds": [], "evaluations": []}) == []
 
 
-def _scenes_with_real_panoptic(dataset, preset, only=()):
-    """``resolve_scenes`` as if basketball were under MOEGS_DATA and nothing else were."""
-    from bench.datasets import get_dataset
-    from bench.scenes import SceneRef
-
-    if dataset == "panoptic":
-        return [SceneRef("panoptic:basketball", "panoptic", "Basketball", True)]
-    return [SceneRef(f"synthetic:{get_dataset(dataset).stand_in}", dataset, None, False)]
-
-
-def _write_psnr(ws, task, psnr: float) -> None:
-    from bench.results import SCHEMA, write_result
-
-    result = {
-        "schema": SCHEMA,
-        "status": "ok",
-        "key": task.key,
-        "task": task.to_dict(),
-        "metrics": {"psnr": psnr},
-    }
-    write_result(ws.result_path(task), {**result, "versions": {}, "timings": {}})
-
-
 def test_tables_of_scenes_without_a_stability_run_average_several_seeds_and_judge_claims_by_their_spread(
     tmp_path, monkeypatch
 ):
@@ -296,7 +274,7 @@ def test_tables_of_scenes_without_a_stability_run_average_several_seeds_and_judg
     from bench.store import Workspace
     from bench.values import SpecValues
 
-    monkeypatch.setattr(bench.plan, "resolve_scenes", _scenes_with_real_panoptic)
+    monkeypatch.setattr(bench.plan, "resolve_scenes", staged_scenes("panoptic:basketball"))
     quick = get_preset("quick")
     plan = bench.plan.make_plan(["tab16", "tab09", "fig_gates_panoptic"], quick)
     tab16, tab09, figure = plan.specs
@@ -323,9 +301,9 @@ def test_tables_of_scenes_without_a_stability_run_average_several_seeds_and_judg
         "MoE-GS (N=2)": (22.0, 21.5, 22.5),
     }
     for slot in tab16.slots:
-        _write_psnr(ws, slot.task, psnr[slot.row][slot.seed])
+        write_ok_result(ws, slot.task, psnr=psnr[slot.row][slot.seed])
     for slot in tab09.slots:  # the stand-in's stability runs: 0.5 dB apart at most
-        _write_psnr(ws, slot.task, 25.0 + 0.25 * slot.seed)
+        write_ok_result(ws, slot.task, psnr=25.0 + 0.25 * slot.seed)
     noise = seed_noise(plan, ws)
     basketball = noise["scenes"]["panoptic:basketball"]
     assert basketball["real"] and basketball["seeds"] == 3 and basketball["source"] == ["tab16"]
@@ -383,9 +361,9 @@ def test_tables_of_scenes_without_a_stability_run_average_several_seeds_and_judg
     # the same cells run elsewhere (other rounding: other values) pool: the larger spread decides
     elsewhere = Workspace(tmp_path / "elsewhere")
     for slot in tab16.slots:
-        _write_psnr(elsewhere, slot.task, 20.0 + 0.1 * slot.seed)  # 0.2 dB apart
+        write_ok_result(elsewhere, slot.task, psnr=20.0 + 0.1 * slot.seed)  # 0.2 dB apart
     for slot in tab09.slots:
-        _write_psnr(elsewhere, slot.task, 25.0)
+        write_ok_result(elsewhere, slot.task, psnr=25.0)
     pooled = run_noise(plan, elsewhere, summary)
     entry = pooled["scenes"]["panoptic:basketball"]
     assert entry["own_metrics"]["PSNR"] == pytest.approx(0.2) and entry["metrics"]["PSNR"] == pytest.approx(
@@ -438,7 +416,7 @@ def test_a_table_trained_once_measures_no_spread(tmp_path):
     computed = [slot for slot in plan.specs[0].slots if slot.task is not None]  # not the external rows
     assert computed
     for i, slot in enumerate(computed):
-        _write_psnr(ws, slot.task, 25.0 + 0.1 * i)
+        write_ok_result(ws, slot.task, psnr=25.0 + 0.1 * i)
     assert seed_noise(plan, ws) == {"preset": "quick", "scenes": {}, "metrics": {}, "source": []}
 
 
@@ -448,14 +426,14 @@ def test_deltas_are_ours_minus_the_papers_on_comparable_cells_only(tmp_path, mon
     from bench.store import Workspace
     from bench.values import SpecValues
 
-    monkeypatch.setattr(bench.plan, "resolve_scenes", _scenes_with_real_panoptic)
+    monkeypatch.setattr(bench.plan, "resolve_scenes", staged_scenes("panoptic:basketball"))
     quick = get_preset("quick")
     real, stand_in = bench.plan.make_plan(["tab16", "tab06"], quick).specs
     ws = Workspace(tmp_path)
     for sp in (real, stand_in):
         for slot in sp.slots:
             if slot.task is not None:
-                _write_psnr(ws, slot.task, 20.0)
+                write_ok_result(ws, slot.task, psnr=20.0)
     values = SpecValues(real, ws)
     deltas = values.deltas()
     assert deltas and all(d["ours"] == pytest.approx(20.0) for d in deltas)

@@ -5,38 +5,17 @@ ranks and digits. Results are written by hand into a workspace; no cell runs."""
 from __future__ import annotations
 
 import pytest
+from helpers.cells import staged_scenes, write_ok_result
 
 import bench.plan
 from bench.latex import _ranks, cell_tex, fmt
 from bench.presets import get_preset
-from bench.results import SCHEMA, write_result
-from bench.scenes import SceneRef
 from bench.store import Workspace
 from bench.values import AVERAGE, MEAN, STAND_IN, SpecValues
 
 
-def _write(ws: Workspace, slot, **metrics: float) -> None:
-    task = slot.task
-    result = {"schema": SCHEMA, "status": "ok", "key": task.key, "task": task.to_dict(), "metrics": metrics}
-    write_result(ws.result_path(task), {**result, "versions": {}, "timings": {}})
-
-
-def _real(*names: str):
-    """``resolve_scenes`` as if exactly the scenes ``names`` (``dataset:scene``) were staged."""
-    from bench.datasets import get_dataset
-
-    def resolve(dataset, preset, only=()):
-        ds = get_dataset(dataset)
-        mine = [n for n in names if n.startswith(f"{dataset}:")]
-        if mine:
-            return [SceneRef(n, dataset, ds.column_of(n.split(":", 1)[1]), True) for n in mine]
-        return [SceneRef(f"synthetic:{ds.stand_in}", dataset, None, False)]
-
-    return resolve
-
-
 def _plan(table: str, monkeypatch, *real: str):
-    monkeypatch.setattr(bench.plan, "resolve_scenes", _real(*real))
+    monkeypatch.setattr(bench.plan, "resolve_scenes", staged_scenes(*real))
     return bench.plan.make_plan([table], get_preset("quick")).specs[0]
 
 
@@ -46,7 +25,7 @@ def test_the_seeds_axis_prints_min_max_and_average_of_every_seed(tmp_path, monke
     ws = Workspace(tmp_path)
     slots = [s for s in sp.slots if s.task is not None]
     for s in slots:
-        _write(ws, s, psnr=20.0 + s.seed + (1.0 if s.row == "E-D3DGS" else 0.0))
+        write_ok_result(ws, s.task, psnr=20.0 + s.seed + (1.0 if s.row == "E-D3DGS" else 0.0))
     values = SpecValues(sp, ws)
     seeds = sp.seeds
     for row, offset in (("E-D3DGS", 1.0), ("MoE-GS (N=3)", 0.0)):
@@ -58,7 +37,7 @@ def test_the_seeds_axis_prints_min_max_and_average_of_every_seed(tmp_path, monke
     partial = Workspace(tmp_path / "partial")
     for s in slots:
         if not (s.row == "E-D3DGS" and s.seed == last):
-            _write(partial, s, psnr=20.0)
+            write_ok_result(partial, s.task, psnr=20.0)
     values = SpecValues(sp, partial)
     assert [values.get("E-D3DGS", c, "PSNR") for c in ("Min", "Max", "Average")] == [None] * 3
     assert values.get("MoE-GS (N=3)", "Average", "PSNR") == pytest.approx(20.0)
@@ -70,7 +49,7 @@ def test_the_budgets_axis_prints_each_budgets_own_cells(tmp_path, monkeypatch):
     budgets = sp.spec.budgets
     for s in sp.slots:
         if s.task is not None:
-            _write(ws, s, psnr=20.0 + 10.0 * budgets[s.budget_column])
+            write_ok_result(ws, s.task, psnr=20.0 + 10.0 * budgets[s.budget_column])
     values = SpecValues(sp, ws)
     for column, fraction in budgets.items():
         assert values.get("STG", column, "PSNR") == pytest.approx(20.0 + 10.0 * fraction), column
@@ -83,7 +62,7 @@ def test_the_average_and_dataset_means_need_all_of_the_papers_scenes(tmp_path, m
     ws = Workspace(tmp_path)
     for s in sp.slots:
         if s.task is not None:
-            _write(ws, s, psnr=20.0)
+            write_ok_result(ws, s.task, psnr=20.0)
     values = SpecValues(sp, ws)
     mutant = values.cells[("Grid4D", "Mutant", "PSNR")]
     assert mutant.value == pytest.approx(20.0) and mutant.comparable
@@ -94,7 +73,7 @@ def test_the_average_and_dataset_means_need_all_of_the_papers_scenes(tmp_path, m
     assert [s.name for s in sp.scenes] == ["n3v:coffee_martini"]
     for s in sp.slots:
         if s.task is not None:
-            _write(ws, s, psnr=20.0)
+            write_ok_result(ws, s.task, psnr=20.0)
     values = SpecValues(sp, ws)
     cell = values.cells[("Pixel Router", "PSNR", "PSNR")]
     assert cell.value == pytest.approx(20.0) and not cell.comparable
@@ -116,7 +95,7 @@ def test_a_latex_cell_shows_ours_its_rank_the_paper_and_ours_minus_the_paper(tmp
     for s in sp.slots:
         if s.task is not None:
             psnr, lpips = ours[s.row]
-            _write(ws, s, psnr=psnr, lpips=lpips)
+            write_ok_result(ws, s.task, psnr=psnr, lpips=lpips)
     values = SpecValues(sp, ws)
     paper = values.paper.get("Grid4D", "Mutant", "PSNR")
     printed = values.paper.printed("Grid4D", "Mutant", "PSNR")
@@ -134,7 +113,7 @@ def test_the_best_lpips_is_the_lowest(tmp_path, monkeypatch):
     lpips = {"4DGaussians": 0.2, "E-D3DGS": 0.1, "STG†": 0.3, "Ex4DGS": 0.25, "MoE-GS (N=4)": 0.15}
     for s in sp.slots:
         if s.task is not None:
-            _write(ws, s, psnr=20.0, ssim=0.8, lpips=lpips[s.row])
+            write_ok_result(ws, s.task, psnr=20.0, ssim=0.8, lpips=lpips[s.row])
     ranks = _ranks(SpecValues(sp, ws), STAND_IN, "LPIPS")
     assert ranks == {"E-D3DGS": 0, "MoE-GS (N=4)": 1, "4DGaussians": 2, "Ex4DGS": 3, "STG†": 4}
 
@@ -144,7 +123,7 @@ def test_a_stand_in_value_shows_the_papers_number_without_a_delta(tmp_path, monk
     ws = Workspace(tmp_path)
     for s in sp.slots:
         if s.task is not None:
-            _write(ws, s, psnr=20.0)
+            write_ok_result(ws, s.task, psnr=20.0)
     values = SpecValues(sp, ws)
     printed = values.paper.printed("Pixel Router", "PSNR", "PSNR")
     assert printed is not None
@@ -161,7 +140,7 @@ def test_the_report_says_a_partly_computed_table_is_partly_reproduced(tmp_path, 
     assert _status(SpecValues(sp, ws), quick) == "not run yet (3 row(s) pending)"
     for s in sp.slots:
         if s.task is not None and s.row == "Grid4D":
-            _write(ws, s, psnr=20.0)
+            write_ok_result(ws, s.task, psnr=20.0)
     status = _status(SpecValues(sp, ws), quick)
     assert status.startswith(
         "reproduced at quick preset (reduced scale) on real data (dnerf:mutant): 1/3 rows"
@@ -171,14 +150,14 @@ def test_the_report_says_a_partly_computed_table_is_partly_reproduced(tmp_path, 
 def test_summary_rows_keep_each_experts_full_dynamic_and_static_scores_apart(tmp_path, monkeypatch):
     from bench.signals import expert_rows
 
-    monkeypatch.setattr(bench.plan, "resolve_scenes", _real("dnerf:mutant"))
+    monkeypatch.setattr(bench.plan, "resolve_scenes", staged_scenes("dnerf:mutant"))
     plan = bench.plan.make_plan(["tab17"], get_preset("quick"))
     ws = Workspace(tmp_path)
     for s in plan.specs[0].slots:
         if s.task is not None:
-            _write(
+            write_ok_result(
                 ws,
-                s,
+                s.task,
                 psnr=30.0,
                 psnr_dynamic=25.0,
                 psnr_static=32.0,
