@@ -35,8 +35,8 @@ def _cmd_list(args: argparse.Namespace) -> int:
     print(f"data root: {_describe_root(data_root())}")
     print("scenes (found under the data root; synthetic:<name> is generated on demand):")
     for dataset in list_datasets():
-        found = list_scenes(dataset)
-        print(f"  {dataset:<12} {', '.join(found) if found else '-'}")
+        found = ", ".join(list_scenes(dataset)) or ("generated on demand" if dataset == "synthetic" else "-")
+        print(f"  {dataset:<12} {found}")
     return 0
 
 

@@ -20,6 +20,7 @@ def test_list_imports_no_torch_expert_renderer_or_loader():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert "static" in done.stdout and "mcmc" in done.stdout and "dnerf" in done.stdout
+    assert "  synthetic    generated on demand\n" in done.stdout and "  n3v          " in done.stdout
 
 
 def test_list_says_where_it_looked_for_data(tmp_path, monkeypatch, capsys):
