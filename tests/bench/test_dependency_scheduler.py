@@ -1,5 +1,6 @@
 """The runner's scheduler: a task starts as soon as its own dependencies are built, never waiting for
-unrelated work; failures block exactly what is downstream of them; capacity and priority hold."""
+unrelated work; failures block exactly what is downstream of them; capacity and priority hold. ``execute``
+around it: finished work is reused, and what failed or was blocked is recorded."""
 
 from __future__ import annotations
 
@@ -9,13 +10,24 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
+from helpers.cells import write_ok_result
 
 from bench.executors import Outcome
-from bench.runner import heights, schedule
+from bench.results import read_result
+from bench.runner import execute, heights, schedule
+from bench.store import Workspace
 
 
 def _task(key: str, action: str = "build") -> SimpleNamespace:
-    return SimpleNamespace(key=key, slug=f"{action}-{key}", action=action)
+    return SimpleNamespace(
+        key=key,
+        slug=f"{action}-{key}",
+        action=action,
+        kind="fake",
+        preset="quick",
+        to_dict=lambda: {"key": key},
+        identity=lambda: {"key": key},
+    )
 
 
 class FakeExecutor:
@@ -86,6 +98,19 @@ def test_a_failure_blocks_everything_downstream_and_nothing_else():
     assert "build-" in blocked["cell"] and "failed" in blocked["cell"]
 
 
+def test_a_failure_blocks_a_chain_listed_before_its_link():
+    """The cell depends on the router only; it comes first in plan order, so the pass that blocks the router
+    has already looked at it: blocking must go on until nothing more is blocked."""
+    ex = FakeExecutor(1, {"b": lambda: False})
+    tasks = [_task("cell", "eval"), _task("b"), _task("router")]
+    outcomes, blocked = _run(tasks, {"cell": ["router"], "b": [], "router": ["b"]}, ex)
+    assert [o.task.key for o in outcomes] == ["b"]
+    assert blocked == {
+        "router": "dependency build-b failed (log b.log)",
+        "cell": "dependency build-router failed (dependency build-b failed (log b.log))",
+    }
+
+
 def test_capacity_and_longest_chain_first():
     """One slot: the build with a chain of dependents goes before a ready cell listed first."""
     ex = FakeExecutor(1)
@@ -120,3 +145,37 @@ def test_ctrl_c_interrupts_the_executor():
     with pytest.raises(KeyboardInterrupt):
         _run([_task("a")], {"a": []}, ex)
     assert ex.interrupted and ex.closed
+
+
+def test_execute_reuses_finished_work_and_records_what_it_could_not_do(tmp_path, monkeypatch):
+    """Expert e1 is built and cell c2 evaluated already; e2 fails, so its cell c1 gets a ``failed`` result
+    naming it; c4's result file is broken, so it is recomputed and the file named."""
+    monkeypatch.setattr("bench.runner._deps", lambda task: [])
+    ws = Workspace(tmp_path)
+    e1, e2 = _task("e1"), _task("e2")
+    c1, c2, c3, c4 = (_task(f"c{i}", "eval") for i in range(1, 5))
+
+    def build(folder: Path) -> dict:
+        (folder / "model.pt").write_text("weights")
+        return {}
+
+    ws.ensure(e1, build)
+    write_ok_result(ws, c2)
+    ws.result_path(c4).write_text("{")
+    needs = {"c1": [e2], "c2": [e1], "c3": [e1], "c4": [e1]}
+    plan = SimpleNamespace(
+        build_levels=lambda: [[e1, e2]], eval_tasks=lambda: [c1, c2, c3, c4], closure=lambda t: needs[t.key]
+    )
+    summary = execute(plan, ws, FakeExecutor(1, {"e2": lambda: False}), progress=False)
+    assert (summary.builds_reused, summary.builds_run, summary.evals_reused, summary.evals_run) == (
+        1,
+        1,
+        1,
+        2,
+    )
+    assert [o.task.key for o in summary.failures] == ["e2"] and not summary.ok
+    assert summary.blocked == {"c1": "dependency build-e2 failed (log e2.log)"}
+    failed = read_result(ws.result_path(c1))
+    assert failed["status"] == "failed" and failed["error"] == summary.blocked["c1"]
+    assert len(summary.invalid_results) == 1 and str(ws.result_path(c4)) in summary.invalid_results[0]
+    assert not ws.result_path(c3).exists()  # the fake executor evaluates nothing: no result is invented

@@ -4,6 +4,7 @@ memory and recorded results; exit 1 on a regression, 2 on unusable input."""
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 
@@ -92,7 +93,13 @@ def test_the_newest_machine_folder_is_compared(tmp_path):
         for i in range(1, count + 1):
             _run(folder / f"{i:04d}_abc.json")
     assert newest_runs(tmp_path) == [new / "0001_abc.json", new / "0002_abc.json"]
-    (new / "0001_abc.json").unlink()
+    for stamp, folder in enumerate((new, old)):  # the newest file decides, whatever the folders' names
+        for path in folder.iterdir():
+            os.utime(path, (1_000_000 + stamp, 1_000_000 + stamp))
+    assert newest_runs(tmp_path) == [old / "0004_abc.json", old / "0005_abc.json"]
+    os.utime(new / "0001_abc.json", (2_000_000, 2_000_000))
+    assert newest_runs(tmp_path) == [new / "0001_abc.json", new / "0002_abc.json"]
+    (new / "0002_abc.json").unlink()
     with pytest.raises(ValueError, match=r"Linux-CPython-3\.12-64bit: 1 autosaved run\(s\), need 2"):
         newest_runs(tmp_path)
 
@@ -121,3 +128,7 @@ def test_bad_input_names_the_file(tmp_path, capsys):
     assert "inf.json: median time not a positive number" in capsys.readouterr().err
     with pytest.raises(ValueError, match=r"0 autosaved run\(s\), need 2"):
         newest_runs(tmp_path / "empty")
+    with pytest.raises(SystemExit) as exit_:
+        main([str(tmp_path / "zero.json")])
+    assert exit_.value.code == 2
+    assert "give two runs (BASE.json NEW.json) or none, got 1" in capsys.readouterr().err

@@ -9,7 +9,7 @@ import time
 import pytest
 
 from bench.claims import FAILED, HELD, NA, better, monotone, order
-from bench.keys import code_version, digest
+from bench.keys import code_version, digest, plugin_sources
 from bench.results import (
     SCHEMA,
     ResultError,
@@ -56,6 +56,44 @@ def test_code_version_pin(monkeypatch):
     finally:
         monkeypatch.delenv("MOEGS_BENCH_CODE_VERSION")
         code_version.cache_clear()
+
+
+def test_code_version_hashes_python_and_the_c_kernel_but_not_docstrings(tmp_path, monkeypatch):
+    (tmp_path / "moegs" / "kernels").mkdir(parents=True)
+    module, kernel = tmp_path / "moegs" / "a.py", tmp_path / "moegs" / "kernels" / "raster.c"
+    module.write_text('"""Doc."""\nX = 1\n')
+    kernel.write_text("int f(void) { return 1; }\n")
+    monkeypatch.setattr("bench.keys.REPO", tmp_path)
+    monkeypatch.setattr("bench.keys.plugin_sources", lambda: [])
+
+    def version() -> str:
+        code_version.cache_clear()
+        return code_version()
+
+    try:
+        first = version()
+        module.write_text('"""Other words."""\nX = 1\n')
+        assert version() == first
+        kernel.write_text("int f(void) { return 2; }\n")
+        assert version() != first
+    finally:
+        code_version.cache_clear()
+
+
+def test_the_version_holds_each_plugin_experts_module_source(tmp_path, monkeypatch):
+    """A plugin expert lives outside the repository: its module's source is part of the version."""
+    import moegs.experts
+    from moegs.experts import ExpertSpec
+
+    module = tmp_path / "my_plugin_expert.py"
+    module.write_text("class MyExpert: ...\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    builtin = moegs.experts.list_experts()
+    plugin = ExpertSpec("mine", "my_plugin_expert:MyExpert", "a plugin", plugin="my-dist")
+    monkeypatch.setattr(moegs.experts, "list_experts", lambda: [*builtin, plugin])
+    assert plugin_sources() == [("mine", b"class MyExpert: ...\n")]
+    module.write_text("class MyExpert: pass\n")
+    assert plugin_sources() == [("mine", b"class MyExpert: pass\n")]
 
 
 def _result(task: Task, **kw) -> dict:
@@ -226,6 +264,25 @@ def test_intact_artefact_is_not_rebuilt(tmp_path):
     assert len(calls) == 1
 
 
+def test_an_artefact_without_file_hashes_is_not_built(tmp_path):
+    ws, task, _, _ = _built(tmp_path)
+    meta = ws.artifact_dir(task) / "artifact.json"
+    meta.write_text(json.dumps({k: v for k, v in json.loads(meta.read_text()).items() if k != "files"}))
+    fresh = Workspace(tmp_path)
+    with pytest.raises(Exception, match="records no file hashes") as err:
+        fresh.verify(task)
+    assert str(ws.artifact_dir(task)) in str(err.value) and not fresh.is_built(task)
+
+
+def test_a_successful_build_clears_the_failure_a_worker_left(tmp_path):
+    ws, task = Workspace(tmp_path), _task(action="build")
+    ws.failure_path(task).parent.mkdir(parents=True)
+    ws.failure_path(task).write_text('{"error": "out of memory"}')
+    build, _ = _builder({})
+    ws.ensure(task, build)
+    assert ws.is_built(task) and not ws.failure_path(task).exists()
+
+
 def test_non_finite_metrics_fail_the_cell():
     from bench.worker import check_finite_metrics
 
@@ -269,7 +326,12 @@ def test_claim_checks():
     assert monotone(v, ["moe"], ["A", "B"]).status == FAILED
 
 
-def test_workspace_layout(tmp_path):
+def test_workspace_layout(tmp_path, monkeypatch):
+    monkeypatch.delenv("MOEGS_BENCH_DIR", raising=False)
+    monkeypatch.chdir(tmp_path)
+    assert Workspace().root == tmp_path / "runs" / "bench"  # the working directory, never the install tree
+    monkeypatch.setenv("MOEGS_BENCH_DIR", str(tmp_path / "elsewhere"))
+    assert Workspace().root == tmp_path / "elsewhere"
     ws = Workspace(tmp_path)
     task = _task()
     assert ws.result_path(task).parent.name == "expert"

@@ -340,6 +340,16 @@ def test_overrides_apply_last_and_are_recorded():
     assert record["reductions"]["train.iterations"] == 600
 
 
+def test_steps_name_every_stage_that_changed_the_config():
+    recipe = config_for("grid4d", "dnerf:lego", "quick", overrides={"depth": 1})
+    steps = recipe.steps
+    assert steps[0] == "dnerf preset 'paper-dnerf' (" + recipe.base_source + ")"
+    assert steps[1].startswith("scene overrides: ") and "grid_lr_scale=250.0" in steps[1]
+    assert steps[2].startswith("quick reductions: ") and "train.iterations=600" in steps[2]
+    assert steps[3:] == ["user overrides: depth=1", "background: black"]
+    assert config_for("grid4d", "dnerf:mutant", "paper").steps[1:] == ["background: black"]
+
+
 def test_bad_names_fail_clearly():
     with pytest.raises(ValueError, match="unknown recipe preset 'fast'"):
         config_for("grid4d", "dnerf:mutant", "fast")
