@@ -109,6 +109,31 @@ def test_study_runs_caches_and_draws(tmp_path, mutant_root, monkeypatch, capsys)
     assert json.loads(cell.read_text())["psnr"] == 11.0
 
 
+def test_a_study_stops_at_each_resolutions_limit_and_force_recomputes(tmp_path, monkeypatch):
+    """Without training: ``run_cell`` records what it was asked for."""
+    trained = []
+
+    def fake_cell(expert, scene, resolution, iterations, progress, variant):
+        trained.append((resolution, iterations))
+        return {
+            "expert": expert,
+            "resolution_scale": resolution,
+            "iterations": iterations,
+            "code_version": "v",
+        }
+
+    monkeypatch.setattr(convergence, "run_cell", fake_cell)
+    monkeypatch.setattr(convergence, "cell_code_version", lambda expert, scene: "v")
+    study = dict(scene=SCENE, experts=["static"], iterations=[10, 20, 30], resolutions=[0.25, 0.5],
+                 workspace=tmp_path, limits={0.25: 20}, progress=False)  # fmt: skip
+    records, missing = convergence.run_study(**study)
+    assert trained == [(0.25, 10), (0.25, 20), (0.5, 10), (0.5, 20), (0.5, 30)] and missing == []
+    assert [(r["resolution_scale"], r["iterations"]) for r in records] == trained
+    assert convergence.run_study(**study)[0] == records and len(trained) == 5  # cached
+    convergence.run_study(**study, force=True)
+    assert len(trained) == 10
+
+
 def test_provenance_names_the_machine_of_every_cell():
     """A study may gather cells computed on several machines: the footer names each, not the machine
     that drew the table."""

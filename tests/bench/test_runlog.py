@@ -11,7 +11,17 @@ import pytest
 
 import bench.runner
 from bench.all import main
-from bench.runlog import SHOWN, cache_state, describe, read_runs, recent, record_run, runs_of, runs_path
+from bench.runlog import (
+    SHOWN,
+    cache_state,
+    describe,
+    read_runs,
+    recent,
+    record_run,
+    runs_of,
+    runs_path,
+    took,
+)
 from bench.runner import RunSummary
 
 COUNTS = {
@@ -60,6 +70,8 @@ def test_cache_state_and_description(tmp_path):
     assert describe(dirty).endswith(
         "1.2 min cold (2 jobs, cpu), git 0123456 with uncommitted changes to moegs"
     )
+    assert took({**clean, "seconds": 45.4}) == "45 s cold (2 jobs, cpu)"  # under a minute: seconds
+    assert took({**clean, "jobs": None, "executor": "slurm"}) == "1.2 min cold (slurm, cpu)"
 
 
 def test_warm_reruns_do_not_hide_the_run_that_computed_the_cells(tmp_path):
