@@ -7,10 +7,11 @@ from bench.results import SCHEMA, write_result
 from bench.scenes import SceneRef
 
 
-def write_ok_result(workspace, task, **metrics: float) -> None:
-    """A finished evaluation of ``task`` in ``workspace`` with ``metrics`` (``psnr=...``, ``ssim=...``)."""
+def write_ok_result(workspace, task, extra: dict | None = None, **metrics: float) -> None:
+    """A finished evaluation of ``task`` in ``workspace`` with ``metrics`` (``psnr=...``, ``ssim=...``) and
+    the result fields in ``extra`` (``details``, ``artifacts`` ...)."""
     result = {"schema": SCHEMA, "status": "ok", "key": task.key, "task": task.to_dict(), "metrics": metrics}
-    write_result(workspace.result_path(task), {**result, "versions": {}, "timings": {}})
+    write_result(workspace.result_path(task), {**result, "versions": {}, "timings": {}, **(extra or {})})
 
 
 def staged_scenes(*names: str):
