@@ -89,3 +89,32 @@ def test_written_files_follow_the_umask(tmp_path):
         os.umask(old)
     for path in paths:
         assert stat.S_IMODE(path.stat().st_mode) == 0o644, path
+
+
+def test_views_and_repeated_tensors_are_stored_on_their_own(tmp_path):
+    t = torch.arange(6.0)
+    back = load_checkpoint(save_checkpoint(tmp_path / "c.safetensors", {"a": t, "b": t, "tail": t[2:]}))
+    assert torch.equal(back["a"], t) and torch.equal(back["b"], t) and torch.equal(back["tail"], t[2:])
+
+
+def test_what_cannot_be_stored_exactly_is_refused(tmp_path):
+    with pytest.raises(TypeError, match=r"checkpoint: keys at / must be str or int, got \[True\]"):
+        save_checkpoint(tmp_path / "c.safetensors", {True: 1})
+    with pytest.raises(ValueError, match="Out of range float"):  # NaN is not JSON: refused, not written
+        save_checkpoint(tmp_path / "c.safetensors", {"loss": float("nan")})
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_damaged_metadata_and_json_files_name_the_file(tmp_path):
+    from moegs.errors import IntegrityError
+    from moegs.io import read_json
+
+    save_file({"x": torch.ones(1)}, tmp_path / "broken.safetensors", metadata={"moegs": "{not json"})
+    with pytest.raises(IntegrityError, match="broken.safetensors: damaged checkpoint metadata"):
+        load_checkpoint(tmp_path / "broken.safetensors")
+    (tmp_path / "list.json").write_text("[1, 2]")
+    with pytest.raises(IntegrityError, match="list.json: expected a JSON object, got list"):
+        read_json(tmp_path / "list.json")
+    (tmp_path / "latin1.json").write_bytes(b'{"name": "\xe9"}')
+    with pytest.raises(IntegrityError, match="latin1.json: not valid JSON"):
+        read_json(tmp_path / "latin1.json")
