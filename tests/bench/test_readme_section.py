@@ -133,3 +133,28 @@ def test_published_tables_have_sources_and_known_rows():
         assert len(entries) == len(spec["originals"]) + len(spec["moegs"])
         rows = {row for e in entries for row in e["rows"]}
         assert rows & {paper_name(e) for e in EXPERTS.values()}, rows
+
+
+def test_a_published_row_of_two_tables_is_listed_once_and_nan_is_not_a_number():
+    row = {"expert": "static", "psnr": float("nan"), "ssim": 0.9, "lpips": None, "train_seconds": 3.0,
+           "num_gaussians": 10, "iterations": 5, "run": "runs/x/static"}  # fmt: skip
+    table = {"scene": "dnerf:mutant", "preset": "quick", "rows": [row]}
+    cell = {"printed": "30.00", "source": "a paper"}
+    published = [
+        {"kind": "original", "title": "own", "rows": {"MoE-GS (N=2)": {"PSNR": cell}}},
+        {"kind": "moegs", "numeral": "XVII", "title": "moe", "rows": {"MoE-GS (N=2)": {"PSNR": cell}}},
+    ]
+    lines = readme_section(table, published, machine="cpu").splitlines()
+    assert sum(line.startswith("| – | MoE-GS (N=2) |") for line in lines) == 1
+    assert any(line.startswith("| static | 3D-GS | n/a | 0.9000 | n/a | – |") for line in lines)
+
+
+def test_a_section_whose_end_comes_first_is_refused(tmp_path):
+    from bench.readme import split_section
+
+    path = tmp_path / "README.md"
+    path.write_text("<!-- /results:mutant -->\nbody\n<!-- results:mutant -->\n")
+    with pytest.raises(
+        ValueError, match="README.md: needs exactly one '<!-- results:mutant -->' followed by"
+    ):
+        split_section(path, "mutant")
