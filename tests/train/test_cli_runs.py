@@ -241,3 +241,11 @@ def test_finished_run_is_a_completed_and_evaluated_run(tmp_path):
     metrics.write_text("{cut")
     with pytest.raises(ValueError, match=re.escape(f"{metrics} is not valid JSON") + ".*; remove it"):
         finished_run(tmp_path)
+
+
+def test_changed_fields_are_described_six_at_most():
+    from moegs.train.reuse import describe_changes
+
+    assert describe_changes(["train.iterations"]) == "train.iterations"
+    assert describe_changes(list("abcdef")) == "a, b, c, d, e, f"
+    assert describe_changes(list("abcdefgh")) == "a, b, c, d, e, f and 2 more"
