@@ -23,6 +23,7 @@ LaTeX checks skip.
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -271,3 +272,21 @@ def test_loader_api():
 def test_loader_imports_without_torch():
     code = "import sys, bench.paper; assert 'torch' not in sys.modules, 'bench.paper imported torch'"
     subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).resolve().parents[2])
+
+
+def test_numbers_printed_in_the_text_and_unknown_metrics(monkeypatch, tmp_path):
+    import bench.paper
+    from bench.paper import load_paper_numbers, paper_tex_path
+
+    roi = load_paper_numbers("static_roi")  # numbers of a sentence of Sec. IV-C (iv), not of a table
+    assert roi.value("MoE-GS (N=3)*", "Coffee Martini", "PSNR static") == 22.23
+    with pytest.raises(KeyError, match="tab03: unknown metric 'PSNR dynamic'"):
+        paper_value("tab03", "MoE-GS (N=3)", "Average", "PSNR dynamic")
+    monkeypatch.setenv("MOEGS_PAPER", str(tmp_path / "paper.tex"))
+    assert paper_tex_path() == tmp_path / "paper.tex"
+    (tmp_path / "unsourced.json").write_text(
+        json.dumps({**{k: v for k, v in vars(roi).items() if k != "values"}, "values": [{"row": "x"}]})
+    )
+    monkeypatch.setattr(bench.paper, "PAPER_ORIGINALS_DIR", tmp_path)
+    with pytest.raises(ValueError, match="originals/unsourced.json: values without a source"):
+        bench.paper.load_original_table("unsourced")
