@@ -351,6 +351,20 @@ def test_mp4_roundtrip_psnr(tmp_path):
     assert results["yuv420"] > 20.0  # chroma subsampling of per-pixel noise: lossy by design
 
 
+def test_yuv420_is_encoded_at_the_quality_of_real_n3v_videos(tmp_path):
+    """crf 18 (as real N3V videos): 43.4 dB on this grey texture, where crf 23 gives 37.8 and crf 30 32.3."""
+    y, x = np.mgrid[0:64, 0:96]
+    frames = [
+        np.repeat(((x * 3 + y * 2 + 9 * t) % 200 + 20)[..., None], 3, -1).astype(np.uint8) for t in range(5)
+    ]
+    with VideoWriter(tmp_path / "grey.mp4", 96, 64, 30, "yuv420") as vw:
+        for f in frames:
+            vw.write(f)
+    assert psnr_uint8(np.stack(frames), decode_video(tmp_path / "grey.mp4")) > 40.0
+    with pytest.raises(ValueError, match="unknown codec 'h265'; valid: lossless, yuv444, yuv420"):
+        VideoWriter(tmp_path / "x.mp4", 96, 64, 30, "h265")
+
+
 def test_loads_through_real_n3v_loader(tmp_path):
     small = {"width": 48, "height": 36, "num_frames": 4, "num_cameras": 4, "triangulate": False}
     scene = load_synthetic("n3v_like", root=tmp_path, overrides=small, progress=False, num_points=500)
