@@ -118,3 +118,18 @@ def test_damaged_metadata_and_json_files_name_the_file(tmp_path):
     (tmp_path / "latin1.json").write_bytes(b'{"name": "\xe9"}')
     with pytest.raises(IntegrityError, match="latin1.json: not valid JSON"):
         read_json(tmp_path / "latin1.json")
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="known: write_json leaves its temporary file when json.dump fails (the target is never damaged); "
+    "the fix edits moegs.io.checkpoint, which every bench cell's key hashes, so it waits for the next "
+    "regeneration of tables/ and reports/",
+)
+def test_a_failed_json_write_leaves_no_temporary_file(tmp_path):
+    from moegs.io import write_json
+
+    write_json(tmp_path / "a.json", {"ok": 1})
+    with pytest.raises(TypeError, match="not JSON serializable"):
+        write_json(tmp_path / "a.json", {"bad": object()})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json"]
