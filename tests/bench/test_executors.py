@@ -6,6 +6,7 @@ what it does), so these tests run no cell."""
 
 from __future__ import annotations
 
+import signal
 import time
 from types import SimpleNamespace
 
@@ -70,7 +71,16 @@ def test_a_worker_past_the_timeout_is_killed_and_failed(fake, monkeypatch):
     assert time.perf_counter() - start < 20  # killed, not waited for (the worker runs 30 s)
 
 
-def test_ctrl_c_sends_sigint_so_a_worker_can_save_its_checkpoint(fake, monkeypatch):
+@pytest.fixture
+def sigint_not_ignored():
+    """A process started in the background (``nohup ... &``, as CI may run) ignores SIGINT, its children
+    inherit that, and bash cannot trap a signal ignored at its start: let the fake worker see SIGINT."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_ctrl_c_sends_sigint_so_a_worker_can_save_its_checkpoint(fake, monkeypatch, sigint_not_ignored):
     task, workspace = fake
     monkeypatch.setenv("FAKE_WORKER", "trap")
     executor = LocalExecutor(threads=2)
