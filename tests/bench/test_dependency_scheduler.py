@@ -167,12 +167,8 @@ def test_execute_reuses_finished_work_and_records_what_it_could_not_do(tmp_path,
         build_levels=lambda: [[e1, e2]], eval_tasks=lambda: [c1, c2, c3, c4], closure=lambda t: needs[t.key]
     )
     summary = execute(plan, ws, FakeExecutor(1, {"e2": lambda: False}), progress=False)
-    assert (summary.builds_reused, summary.builds_run, summary.evals_reused, summary.evals_run) == (
-        1,
-        1,
-        1,
-        2,
-    )
+    counts = (summary.builds_reused, summary.builds_run, summary.evals_reused, summary.evals_run)
+    assert counts == (1, 1, 1, 2)
     assert [o.task.key for o in summary.failures] == ["e2"] and not summary.ok
     assert summary.blocked == {"c1": "dependency build-e2 failed (log e2.log)"}
     failed = read_result(ws.result_path(c1))

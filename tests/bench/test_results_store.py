@@ -48,17 +48,22 @@ def test_task_key_is_content_addressed():
     assert digest({"x": (1, 2)}) == digest({"x": [1, 2]})
 
 
-def test_code_version_pin(monkeypatch):
-    monkeypatch.setenv("MOEGS_BENCH_CODE_VERSION", "pinned")
+@pytest.fixture
+def uncached_code_version():
+    """``code_version`` computed afresh inside the test, and again for the tests after it."""
     code_version.cache_clear()
-    try:
-        assert _task().identity()["code_version"] == "pinned"
-    finally:
-        monkeypatch.delenv("MOEGS_BENCH_CODE_VERSION")
-        code_version.cache_clear()
+    yield
+    code_version.cache_clear()
 
 
-def test_code_version_hashes_python_and_the_c_kernel_but_not_docstrings(tmp_path, monkeypatch):
+def test_code_version_pin(monkeypatch, uncached_code_version):
+    monkeypatch.setenv("MOEGS_BENCH_CODE_VERSION", "pinned")
+    assert _task().identity()["code_version"] == "pinned"
+
+
+def test_code_version_hashes_python_and_the_c_kernel_but_not_docstrings(
+    tmp_path, monkeypatch, uncached_code_version
+):
     (tmp_path / "moegs" / "kernels").mkdir(parents=True)
     module, kernel = tmp_path / "moegs" / "a.py", tmp_path / "moegs" / "kernels" / "raster.c"
     module.write_text('"""Doc."""\nX = 1\n')
@@ -70,14 +75,11 @@ def test_code_version_hashes_python_and_the_c_kernel_but_not_docstrings(tmp_path
         code_version.cache_clear()
         return code_version()
 
-    try:
-        first = version()
-        module.write_text('"""Other words."""\nX = 1\n')
-        assert version() == first
-        kernel.write_text("int f(void) { return 2; }\n")
-        assert version() != first
-    finally:
-        code_version.cache_clear()
+    first = version()
+    module.write_text('"""Other words."""\nX = 1\n')
+    assert version() == first
+    kernel.write_text("int f(void) { return 2; }\n")
+    assert version() != first
 
 
 def test_the_version_holds_each_plugin_experts_module_source(tmp_path, monkeypatch):

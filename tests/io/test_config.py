@@ -1,4 +1,6 @@
-"""Config dataclasses survive a JSON round trip, nested strategy subclasses included."""
+"""Config dataclasses survive a JSON round trip (every preset of every expert, nested strategy subclasses
+included); dotted field edits (``with_fields``) and the field diffs runs are reused by (``config_changes``,
+``changed_fields``)."""
 
 import dataclasses
 import json
