@@ -12,6 +12,8 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -65,28 +67,30 @@ def _umask_mode() -> int:
     return 0o666 & ~mask
 
 
-def _temporary(path: Path) -> str:
-    """A new temporary file beside ``path`` with the umask's permissions; returns its name."""
+@contextmanager
+def _replacing(path: Path) -> Iterator[str]:
+    """Yield the name of a new temporary file beside ``path`` (the umask's permissions); when the block
+    ends, move it onto ``path`` in one step, or remove it if the block raised."""
+    path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.fchmod(fd, _umask_mode())
     os.close(fd)
-    return tmp
+    try:
+        yield tmp
+        os.chmod(tmp, _umask_mode())  # a writer that makes its own file (safetensors) gives it mode 0600
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
 
 
 def save_checkpoint(path: str | Path, state: dict) -> Path:
     """Write ``state`` atomically to ``path`` (``.safetensors``); returns the path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tensors: dict[str, Tensor] = {}
     meta = json.dumps(_split(state, "", tensors), allow_nan=False)
-    tmp = _temporary(path)
-    try:
+    with _replacing(path) as tmp:
         save_file(tensors, tmp, metadata={_META_KEY: meta})
-        os.chmod(tmp, _umask_mode())  # safetensors writes a new file with mode 0600
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return path
 
 
@@ -116,12 +120,9 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
 def write_json(path: str | Path, value: Any) -> Path:
     """Write ``value`` as indented JSON atomically."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _temporary(path)
-    with open(tmp, "w") as f:
+    with _replacing(path) as tmp, open(tmp, "w") as f:
         json.dump(value, f, indent=2, allow_nan=True)
         f.write("\n")
-    os.replace(tmp, path)
     return path
 
 
