@@ -493,12 +493,12 @@ def point_colors(
 
 # -- nearest-neighbour scales ------------------------------------------------------------------------
 def _knn_torch(points: Tensor, k: int, max_elements: int) -> Tensor:
-    P = points.shape[0]
-    rows = max(1, max_elements // max(P, 1))
+    P, D = points.shape
+    rows = max(1, max_elements // max(P * D, 1))
     out = torch.empty(P, k, dtype=points.dtype, device=points.device)
     for s in range(0, P, rows):
         e = min(P, s + rows)
-        d2 = torch.cdist(points[s:e], points, compute_mode="donot_use_mm_for_euclid_dist").square()
+        d2 = (points[s:e, None, :] - points[None, :, :]).square().sum(-1)  # exact squares: no sqrt
         d2[torch.arange(e - s, device=points.device), torch.arange(s, e, device=points.device)] = float("inf")
         out[s:e] = d2.topk(k, dim=1, largest=False).values
     return out
@@ -527,7 +527,7 @@ def knn_mean_distance(
         method: ``"torch"`` (exact, chunked ``torch.cdist``, any device), ``"kdtree"`` (exact, scipy
             ``cKDTree`` on CPU, much faster for large P) or ``"auto"`` (kdtree on CPU when scipy is
             importable and P > 4096, else torch).
-        max_elements: size of one distance block for the torch path (memory bound).
+        max_elements: size of one block of coordinate differences for the torch path (memory bound).
     Returns:
         ``[P]`` with the dtype and device of ``points``; zeros when ``P < 2``.
     """
@@ -559,7 +559,10 @@ def initial_scales(points: Tensor, k: int = 3, min_sq_dist: float = 1e-7) -> Ten
     """3DGS initial log-scales ``[P, 3]``.
 
     ``scale = sqrt(clamp(mean squared distance to the 3 nearest neighbours, min=1e-7))`` (``distCUDA2``),
-    ``log(scale)`` repeated on the three axes (3DGS ``create_from_pcd``).
+    ``log(scale)`` repeated on the three axes (3DGS ``create_from_pcd``). Computed in float64, the
+    logarithm by numpy: every process gets the same bits (torch's first parallel ``sqrt`` or ``log`` in a
+    fresh process can differ, see ``moegs.threads``).
     """
-    d2 = knn_mean_distance(points, k, squared=True).clamp_min(min_sq_dist)
-    return torch.log(torch.sqrt(d2))[:, None].repeat(1, 3)
+    d2 = knn_mean_distance(points.detach().to(torch.float64), k, squared=True).cpu().numpy()
+    log_scale = 0.5 * np.log(np.maximum(d2, min_sq_dist))  # log(sqrt(d2))
+    return torch.from_numpy(log_scale).to(points.dtype).to(points.device)[:, None].repeat(1, 3)

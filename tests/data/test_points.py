@@ -180,6 +180,20 @@ def test_knn_edge_cases_and_initial_scales():
     assert torch.allclose(a, b, rtol=1e-5)
 
 
+def test_initial_scales_are_the_float64_values_rounded_once():
+    """Every process must start from the same scales: they are computed in float64 (numpy's log, no torch
+    sqrt or log, see moegs.threads) and rounded to float32 once, on both kNN paths."""
+    pts = torch.rand(300, 3, generator=torch.Generator().manual_seed(3))
+    want = (0.5 * torch.log(_brute(pts, 3).mean(1).clamp_min(1e-7))).float()
+    assert torch.equal(initial_scales(pts)[:, 0], want)
+    big = torch.rand(5000, 3, generator=torch.Generator().manual_seed(2))  # auto -> kdtree
+    idx = torch.arange(0, 5000, 97)
+    got = initial_scales(big)[idx, 0]
+    assert got.dtype == torch.float32
+    ref = (0.5 * torch.log(knn_mean_distance(big.double(), 3, squared=True, method="torch")[idx])).float()
+    torch.testing.assert_close(got, ref, rtol=0, atol=1e-7)
+
+
 # -- random samplers ------------------------------------------------------------------------------------
 def test_random_in_box():
     bbox = torch.tensor([[-1.0, 0.0, 2.0], [1.0, 0.5, 3.0]])
