@@ -25,6 +25,7 @@ from bench.keys import file_sha256, versions
 from bench.results import SCHEMA, now, write_json_atomic, write_result
 from bench.store import Workspace
 from bench.tasks import Task
+from moegs.threads import start_cpu_workers
 
 THREADS_ENV = "MOEGS_BENCH_THREADS"
 
@@ -70,12 +71,15 @@ def _redirect(log_path: Path | None):
             os.close(saved[1])
 
 
-def _set_threads(threads: int | None) -> None:
+def _start_threads(threads: int | None) -> None:
+    """Set torch's thread count (the job's, else ``$MOEGS_BENCH_THREADS``), then start the threads before
+    the cell computes, so that every worker process computes alike (``moegs.threads``)."""
     threads = threads or (int(os.environ[THREADS_ENV]) if os.environ.get(THREADS_ENV) else None)
     if threads:
         import torch
 
         torch.set_num_threads(threads)
+    start_cpu_workers()
 
 
 def _evaluate(task: Task, ctx: Context, log: Path) -> dict[str, Any]:
@@ -177,7 +181,7 @@ def run_job(job_file: str | Path, redirect: bool = False) -> dict[str, Any]:
     log = Path(job["log"])
     with _redirect(log if redirect else None):
         print(f"[bench] {time.strftime('%H:%M:%S')} {task.action} {task.slug} key={task.key}", flush=True)
-        _set_threads(job.get("threads"))
+        _start_threads(job.get("threads"))
         ctx = Context(workspace, task.preset, progress=False)
         ctx.task = task
         if task.action == "build":

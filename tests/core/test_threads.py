@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 import moegs.cli
 
@@ -56,3 +57,17 @@ def test_commands_that_compute_start_the_workers_first(monkeypatch, tmp_path, ca
     assert moegs.cli.main(["eval", str(tmp_path / "missing")]) == 2  # fails after the workers started
     assert calls == [True]
     assert str(tmp_path / "missing") in capsys.readouterr().err
+
+
+def test_a_bench_worker_starts_the_threads_after_setting_their_count(monkeypatch):
+    import bench.worker
+
+    calls = []
+    monkeypatch.setattr(bench.worker, "start_cpu_workers", lambda: calls.append("start"))
+    monkeypatch.setattr(torch, "set_num_threads", lambda n: calls.append(n))
+    monkeypatch.delenv(bench.worker.THREADS_ENV, raising=False)
+    bench.worker._start_threads(3)
+    bench.worker._start_threads(None)  # no count given: torch's own, started all the same
+    monkeypatch.setenv(bench.worker.THREADS_ENV, "2")
+    bench.worker._start_threads(None)
+    assert calls == [3, "start", "start", 2, "start"]
