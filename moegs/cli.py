@@ -50,17 +50,17 @@ def _describe_root(root: Path | None) -> str:
 
 
 def _load_kwargs(meta: dict) -> dict:
-    """``load_scene`` arguments of a run's ``config.json``: those its training used. The rule of
-    ``moegs.recipes.Recipe.load_kwargs``, on the recorded values: the recipe's background, and the
-    training resolution, which a stand-in (generated at its own preset's size) takes only when the user
-    set it."""
+    """``load_scene`` arguments of a run's ``config.json``: those its training used
+    (``moegs.recipes.scene_load_kwargs`` on the recorded recipe and training config)."""
+    from moegs.recipes import scene_load_kwargs
+
     recipe = meta.get("recipe") or {}
-    kwargs = {"background": recipe["background"]} if recipe.get("background") else {}
-    scale = meta["train"].get("resolution_scale")
-    user_set = "train.resolution_scale" in (recipe.get("overrides") or {})
-    if scale is not None and (not meta["scene"].startswith("synthetic:") or user_set):
-        kwargs["resolution_scale"] = scale
-    return kwargs
+    return scene_load_kwargs(
+        meta["scene"],
+        recipe.get("background"),
+        meta["train"].get("resolution_scale"),
+        user_scale="train.resolution_scale" in (recipe.get("overrides") or {}),
+    )
 
 
 def _load_scene(meta: dict):

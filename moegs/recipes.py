@@ -77,12 +77,12 @@ class Recipe:
     def load_kwargs(self) -> dict[str, Any]:
         """``load_scene`` keyword arguments this run needs: the background, and the training resolution
         (stand-ins are generated at their own preset's size: only a user's resolution applies to them)."""
-        kwargs: dict[str, Any] = {"background": self.background}
-        scale = self.config.train.resolution_scale
-        stand_in = self.scene.startswith("synthetic:")
-        if scale is not None and (not stand_in or "train.resolution_scale" in self.overrides):
-            kwargs["resolution_scale"] = scale
-        return kwargs
+        return scene_load_kwargs(
+            self.scene,
+            self.background,
+            self.config.train.resolution_scale,
+            user_scale="train.resolution_scale" in self.overrides,
+        )
 
     @property
     def steps(self) -> list[str]:
@@ -116,6 +116,18 @@ class Recipe:
             "overrides": _jsonable(self.overrides),
             "background": self.background,
         }
+
+
+def scene_load_kwargs(
+    scene: str, background: str | None, resolution_scale: float | None, user_scale: bool
+) -> dict[str, Any]:
+    """``load_scene`` keyword arguments of a run: its ``background`` (if any) and its training
+    ``resolution_scale`` (if any), which a stand-in (generated at its own preset's size) takes only when
+    the user set it (``user_scale``)."""
+    kwargs: dict[str, Any] = {"background": background} if background else {}
+    if resolution_scale is not None and (not scene.startswith("synthetic:") or user_scale):
+        kwargs["resolution_scale"] = resolution_scale
+    return kwargs
 
 
 def _jsonable(values: Mapping[str, Any]) -> dict[str, Any]:
