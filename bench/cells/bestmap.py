@@ -29,12 +29,31 @@ def artifacts(task: Task) -> list[Task]:
     return [expert_task(task, e) for e in task.params["experts"]]
 
 
+def spatial_winners(errors: Any, mask: Any, names: list[str]) -> dict[str, Any]:
+    """The per-pixel winner of ``errors [K, H, W]`` (lowest error; ``K = len(names)``): ``winner [H, W]``,
+    each expert's ``shares`` of all pixels, how many ``winners`` hold at least ``MIN_SHARE``, the winner
+    map's ``coherence``, and ``region_shares`` of the dynamic and static pixels (None without ``mask``)."""
+    import torch
+
+    from moegs.moe.model import region_shares, winner_coherence
+
+    scores = -errors  # the best expert scores highest
+    winner = scores.argmax(0)
+    shares = torch.bincount(winner.flatten(), minlength=len(names)).float() / winner.numel()
+    return {
+        "winner": winner,
+        "shares": dict(zip(names, shares.tolist(), strict=True)),
+        "winners": int((shares >= MIN_SHARE).sum()),
+        "coherence": winner_coherence(scores),
+        "region_shares": region_shares(scores, mask) if mask is not None else None,
+    }
+
+
 def run(task: Task, ctx: Any) -> dict[str, Any]:
     import numpy as np
     import torch
 
     from moegs.metrics import psnr
-    from moegs.moe.model import region_shares, winner_coherence
     from moegs.train.evaluate import eval_views
 
     scene = ctx.scene(task, shared_background(ctx, artifacts(task)))
@@ -58,9 +77,7 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
                 errors = torch.stack([(img - gt).abs().mean(-1) for img in images])  # [K, H, W]
                 spatial = (errors, gt, torch.stack(images), mask)
     errors, gt, images, mask = spatial
-    winner = errors.argmin(0)
-    shares = torch.bincount(winner.flatten(), minlength=len(names)).float() / winner.numel()
-    regions = region_shares(-errors, mask) if mask is not None else None
+    where = spatial_winners(errors, mask, names)
     times = sorted(per_time)
     mean_psnr = np.array([np.mean(per_time[t], axis=0) for t in times])  # [T, K]
     by_region = len(per_time_dynamic) == len(per_time)  # every time step has dynamic pixels
@@ -73,7 +90,7 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     np.savez_compressed(
         files_dir / "bestmap.npz",
         experts=np.array(names),
-        winner=winner.numpy(),
+        winner=where["winner"].numpy(),
         errors=errors.numpy(),
         gt=gt.numpy(),
         images=images.clamp(0, 1).numpy(),
@@ -84,14 +101,14 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     )
     return {
         "metrics": {
-            "winners": int((shares >= MIN_SHARE).sum()),
+            "winners": where["winners"],
             "switches": switches,
             "switches_full": int((best_full[1:] != best_full[:-1]).sum()),
-            "coherence": winner_coherence(-errors),
+            "coherence": where["coherence"],
         },
         "details": {
-            "shares": dict(zip(names, shares.tolist(), strict=True)),
-            "region_shares": regions,
+            "shares": where["shares"],
+            "region_shares": where["region_shares"],
             "temporal_region": "dynamic" if by_region else "full",
             "best_per_time": [names[i] for i in best],
             "best_per_time_full": [names[i] for i in best_full],

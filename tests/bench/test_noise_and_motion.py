@@ -169,6 +169,27 @@ def test_region_shares_count_winners_inside_and_outside_the_mask():
     assert shares["static"] == pytest.approx([50 / 70, 20 / 70])
 
 
+def test_the_best_expert_map_is_the_lowest_error_everywhere_and_in_each_region():
+    from bench.cells.bestmap import spatial_winners
+
+    errors = torch.full((3, 10, 10), 0.5)
+    errors[0, :, :4] = 0.1  # "a" has the lowest error on the left, "b" in the middle, "c" on the right
+    errors[1, :, 4:8] = 0.1
+    errors[2, :, 8:] = 0.1
+    mask = torch.zeros(10, 10)
+    mask[:, :2] = 1.0  # the dynamic region lies inside a's part
+    where = spatial_winners(errors, mask, ["a", "b", "c"])
+    assert where["winner"][0].tolist() == [0] * 4 + [1] * 4 + [2] * 2
+    assert where["shares"] == pytest.approx({"a": 0.4, "b": 0.4, "c": 0.2})
+    assert where["winners"] == 3 and where["coherence"] > 0.6
+    assert where["region_shares"]["dynamic"] == [1.0, 0.0, 0.0]
+    assert where["region_shares"]["static"] == pytest.approx([20 / 80, 40 / 80, 20 / 80])
+    errors[2, :, 9] = 0.5  # a three-way tie goes to the first expert; no mask, no regions
+    tied = spatial_winners(errors, None, ["a", "b", "c"])
+    assert tied["winner"][0, 9] == 0 and tied["shares"]["c"] == pytest.approx(0.1)
+    assert tied["region_shares"] is None
+
+
 def test_the_routing_signal_averages_each_regions_winner_shares_over_views():
     from bench.cells.moe import routing_signal
 
