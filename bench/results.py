@@ -28,16 +28,14 @@ One file per evaluated cell (``Workspace.result_path``). Fields::
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
-import os
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from bench.tasks import Task
+from moegs.atomic import atomic_path
 
 SCHEMA = "moegs.bench.result/1"
 REQUIRED = ("schema", "status", "key", "task", "metrics", "versions", "timings", "content_sha256")
@@ -46,19 +44,6 @@ HASH_FIELD = "content_sha256"
 
 class ResultError(ValueError):
     """A result file is unreadable or inconsistent; the message names the file."""
-
-
-@contextlib.contextmanager
-def atomic_path(path: Path) -> Iterator[Path]:
-    """A temporary file beside ``path`` for the block to write; it replaces ``path`` when the block ends
-    and is removed when the block raises, so ``path`` is never half-written."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def write_text_atomic(path: Path, text: str) -> None:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import hashlib
 import os
-import tempfile
 from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
@@ -28,6 +27,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from moegs.atomic import atomic_path
 from moegs.data.scene import PointCloud
 from moegs.paths import cache_root
 
@@ -54,15 +54,12 @@ def _read(path: Path, shape: tuple[int, ...], dtype: torch.dtype) -> Tensor | No
 
 
 def _write(path: Path, save: Callable[[BinaryIO], None]) -> None:
-    """Atomically write ``path`` with ``save(file)``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    """Atomically write ``path`` with ``save(file)``; a cache that cannot be written is skipped."""
     try:
-        with os.fdopen(fd, "wb") as f:
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:
             save(f)
-        os.replace(tmp, path)
     except OSError:
-        Path(tmp).unlink(missing_ok=True)  # a read-only or full cache only costs the speed-up
+        pass  # a read-only or full cache only costs the speed-up
 
 
 def cached(

@@ -4,16 +4,12 @@ the state (numbers, strings, lists, dicts) as JSON in the file's metadata.
 A state is a tree of dicts (string or int keys) and lists whose leaves are tensors or JSON values.
 Tensors are stored under their path (``"optim/means/state/0/exp_avg"``) and replaced in the JSON by
 ``{"__tensor__": path}``. Writes are atomic (temporary file + ``os.replace``), so an interrupted
-write never damages the previous checkpoint.
+write never damages the previous checkpoint (``moegs.atomic``).
 """
 
 from __future__ import annotations
 
 import json
-import os
-import tempfile
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +18,7 @@ from safetensors import safe_open
 from safetensors.torch import save_file
 from torch import Tensor
 
+from moegs.atomic import atomic_path
 from moegs.errors import IntegrityError
 
 _META_KEY = "moegs"
@@ -60,37 +57,13 @@ def _join(tree: Any, tensors: dict[str, Tensor]) -> Any:
     return tree
 
 
-def _umask_mode() -> int:
-    """Permission bits a plain new file gets under the process umask (``mkstemp`` would give 0600)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
-
-
-@contextmanager
-def _replacing(path: Path) -> Iterator[str]:
-    """Yield the name of a new temporary file beside ``path`` (the umask's permissions); when the block
-    ends, move it onto ``path`` in one step, or remove it if the block raised."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.fchmod(fd, _umask_mode())
-    os.close(fd)
-    try:
-        yield tmp
-        os.chmod(tmp, _umask_mode())  # a writer that makes its own file (safetensors) gives it mode 0600
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
 def save_checkpoint(path: str | Path, state: dict) -> Path:
     """Write ``state`` atomically to ``path`` (``.safetensors``); returns the path."""
     path = Path(path)
     tensors: dict[str, Tensor] = {}
     meta = json.dumps(_split(state, "", tensors), allow_nan=False)
-    with _replacing(path) as tmp:
-        save_file(tensors, tmp, metadata={_META_KEY: meta})
+    with atomic_path(path) as tmp:
+        save_file(tensors, str(tmp), metadata={_META_KEY: meta})
     return path
 
 
@@ -120,7 +93,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
 def write_json(path: str | Path, value: Any) -> Path:
     """Write ``value`` as indented JSON atomically."""
     path = Path(path)
-    with _replacing(path) as tmp, open(tmp, "w") as f:
+    with atomic_path(path) as tmp, open(tmp, "w") as f:
         json.dump(value, f, indent=2, allow_nan=True)
         f.write("\n")
     return path

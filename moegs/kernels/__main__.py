@@ -13,10 +13,10 @@ import shlex
 import subprocess
 import sys
 import sysconfig
-import tempfile
 from pathlib import Path
 
 import moegs.kernels as kernels
+from moegs.atomic import atomic_path
 from moegs.kernels import _build
 
 HERE = Path(__file__).resolve().parent
@@ -27,18 +27,12 @@ def build(cc: str | None = None, verbose: bool = True) -> Path:
     cc = cc or os.environ.get("CC", "cc")
     target = HERE / f"{_build.LIBRARY}{sysconfig.get_config_var('EXT_SUFFIX')}"
     sources = [str(HERE / name) for name in _build.SOURCES]
-    # write to a temporary name then rename: a process that has the old library mapped keeps it
-    fd, tmp = tempfile.mkstemp(prefix=f".{_build.LIBRARY}", suffix=".so", dir=HERE)
-    os.close(fd)
-    cmd = [*shlex.split(cc), *_build.COMPILE_ARGS, "-shared", *sources, "-o", tmp, *_build.LINK_ARGS]
-    if verbose:
-        print(" ".join(cmd))
-    try:
+    # written atomically: a process that has the old library mapped keeps it
+    with atomic_path(target, executable=True) as tmp:
+        cmd = [*shlex.split(cc), *_build.COMPILE_ARGS, "-shared", *sources, "-o", str(tmp), *_build.LINK_ARGS]
+        if verbose:
+            print(" ".join(cmd))
         subprocess.run(cmd, check=True)
-        os.replace(tmp, target)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     kernels.reset()
     if verbose:
         print(f"built {target}")

@@ -37,7 +37,7 @@ def test_the_check_sees_nested_imports(tmp_path):
 
 
 LAYERS = (
-    ("kernels",),
+    ("kernels", "atomic"),
     ("camera", "gaussians", "fields", "errors", "paths", "threads"),
     ("render", "data", "metrics", "io"),
     (
