@@ -11,7 +11,9 @@ thread there is no effect (0 of 60).
 A run is not affected when its first parallel region is, say, an image conversion, but ``moegs train
 --expert static`` computes the 3-NN initial scales (a ``sqrt`` of 5000 values) first. So one process in
 twenty started from other scales: a run resumed after ``kill -9`` ended with 4224 Gaussians instead of
-4228. The commands that compute call :func:`start_cpu_workers` first; a script of yours can do the same.
+4228. The commands and the bench's workers call :func:`start_cpu_workers` first; a script of yours can do
+the same. The initial scales are now computed in float64 with numpy's logarithm
+(``moegs.data.points.initial_scales``), so they no longer depend on it.
 A later ``torch.set_num_threads`` above the count at that call may start new threads (not measured):
 call it again after that.
 
