@@ -524,9 +524,9 @@ def knn_mean_distance(
             With fewer than ``k + 1`` points, all other points are used.
         squared: False -> mean of the Euclidean distances; True -> mean of the SQUARED distances,
             which is exactly what the CUDA ``distCUDA2`` of 3DGS returns.
-        method: ``"torch"`` (exact, chunked ``torch.cdist``, any device), ``"kdtree"`` (exact, scipy
-            ``cKDTree`` on CPU, much faster for large P) or ``"auto"`` (kdtree on CPU when scipy is
-            importable and P > 4096, else torch).
+        method: ``"torch"`` (exact, chunked sums of squared differences, any device), ``"kdtree"``
+            (exact, scipy ``cKDTree`` on CPU, much faster for large P) or ``"auto"`` (kdtree on CPU when
+            scipy is importable and P > 4096, else torch).
         max_elements: size of one block of coordinate differences for the torch path (memory bound).
     Returns:
         ``[P]`` with the dtype and device of ``points``; zeros when ``P < 2``.
