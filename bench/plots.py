@@ -18,8 +18,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from moegs.atomic import atomic_path  # noqa: E402
 from bench.values import AVERAGE, MEAN, STAND_IN, SpecValues  # noqa: E402
+from moegs.atomic import atomic_path  # noqa: E402
 
 OURS, PAPER = "#1f77b4", "#9e9e9e"
 
