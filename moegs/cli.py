@@ -154,11 +154,15 @@ def _cmd_train(args: argparse.Namespace) -> int:
     print(scene.summary())
     print("recipe: " + "; ".join(recipe.steps))
     _, result = train_recipe(recipe, scene, out, resume=not args.no_resume, progress=not args.quiet)
-    test = result["test"] or {}
+    test = result["test"]
+    scores = (
+        f"test PSNR {test['psnr']:.2f} SSIM {test['ssim']:.4f}"
+        if test
+        else "not evaluated (the scene has no test views)"
+    )
     print(
         f"{args.expert} on {scene.name}: {result['num_gaussians']} Gaussians, "
-        f"{result['train_seconds']:.1f} s training, test PSNR {test.get('psnr', float('nan')):.2f} "
-        f"SSIM {test.get('ssim', float('nan')):.4f} -> {out}"
+        f"{result['train_seconds']:.1f} s training, {scores} -> {out}"
     )
     return 0
 

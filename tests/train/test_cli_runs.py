@@ -3,6 +3,7 @@ finished run is left alone and one of another config never reused (bad arguments
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import re
@@ -58,6 +59,18 @@ def test_finished_run_is_left_alone_unless_forced(tmp_path, capsys):
     assert "holds a finished run" not in capsys.readouterr().out
     again = metrics(out)  # trained again: the same result, another (measured) training time
     assert again["test"]["psnr"] == first["test"]["psnr"] and again["train_seconds"] != first["train_seconds"]
+
+
+def test_a_scene_without_test_views_is_reported_as_not_evaluated(tmp_path, capsys, monkeypatch):
+    """A run on a scene without test views says so instead of printing a NaN PSNR."""
+    import moegs.data
+
+    load = moegs.data.load_scene
+    monkeypatch.setattr(moegs.data, "load_scene", lambda *a, **k: dataclasses.replace(load(*a, **k), test=[]))
+    assert train(tmp_path / "run", "--iterations", "3") == 0
+    printed = capsys.readouterr().out
+    assert "not evaluated (the scene has no test views)" in printed and "nan" not in printed.lower()
+    assert metrics(tmp_path / "run")["test"] is None
 
 
 def test_a_finished_run_of_another_config_is_refused_by_train_and_marked_by_compare(tmp_path, capsys):
