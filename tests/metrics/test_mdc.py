@@ -41,6 +41,16 @@ def test_a_plane_is_consistent_across_views():
     assert len(mdc_pairs(depths, cams)) == 6
 
 
+def test_samples_next_to_a_hole_are_not_counted():
+    """Bilinear samples need all four neighbouring depths: a hole in one map (no Gaussian there) must not
+    blend its zeros into the samples around it."""
+    cams = [camera(-0.3), camera(0.3)]
+    depths = [plane_depth(c) for c in cams]
+    holed = depths[1].clone()
+    holed[16:32, 16:32] = 0.0
+    assert mdc_pairs([depths[0], holed], cams)[(0, 1)] < 2e-3
+
+
 def test_an_offset_depth_map_is_measured():
     cams = [camera(-0.3), camera(0.3)]
     depths = [plane_depth(c) for c in cams]

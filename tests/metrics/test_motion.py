@@ -47,13 +47,20 @@ def score(renders, targets, masks, cameras) -> float | None:
     return motion.value()
 
 
-@pytest.mark.parametrize("flicker", [False, True], ids=["still-background", "flickering-background"])
-def test_matches_the_definition(gen, flicker):
-    """A flickering background (lighting, exposure) is not motion: both sums stay inside the region."""
+@pytest.mark.parametrize(
+    "flicker, soft", [(False, False), (True, False), (True, True)], ids=["still", "flickering", "soft-mask"]
+)
+def test_matches_the_definition(gen, flicker, soft):
+    """A flickering background (lighting, exposure) is not motion: both sums stay inside the region. A
+    soft mask (matting, resampling) counts where it exceeds one half, not wherever it is non-zero."""
     targets, masks = sequence(gen)
     if flicker:
         outside = (masks.sum(0) == 0)[None, ..., None]
         targets = torch.where(outside, targets * torch.linspace(0.6, 1.0, 5)[:, None, None, None], targets)
+    if soft:  # a 0.3 halo over the rows the square crosses
+        halo = torch.zeros_like(masks)
+        halo[:, 6:18] = 0.3
+        masks = torch.maximum(masks, halo)
     renders = targets + 0.2 * torch.randn(targets.shape, generator=gen)
     cams = [camera(t=t / 5) for t in range(5)]
     assert score(renders, targets, masks, cams) == pytest.approx(

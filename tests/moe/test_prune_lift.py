@@ -60,6 +60,35 @@ def test_importance_is_the_mean_over_views(scene):
         assert (both[k] > 0).any()
 
 
+@pytest.mark.parametrize("k", [0, 1, 2])
+def test_importance_is_the_norm_of_the_own_gate_gradient(scene, k):
+    """``E_i`` of expert ``k`` by hand: the L2 norm of the gradient of expert ``k``'s own gate map (summed
+    over pixels) with respect to row ``i`` of both routing parameters, ``w`` and ``w_time``. Three experts:
+    with two, the gates sum to one and the other expert's gate has the same gradient norm."""
+    m = model(scene, names=("static", "mcmc", "static"))
+    view = next(v for v in scene.train if v.camera.time == 1.0)  # w_time enters as t * w_time
+    scores = gate_importance(m, [view], scene.background)
+    w = m.router.weights
+    gates = m.render(view.camera, scene.background).gates
+    d_mix, d_time = torch.autograd.grad(gates[k].sum(), [w.mix[k], w.time[k]])
+    expected = torch.sqrt((d_mix**2).sum(1) + (d_time**2).sum(1))
+    assert (expected > 0).sum() > 10 and (d_time != 0).any()
+    torch.testing.assert_close(scores[k], expected)
+
+
+def test_pruning_keeps_the_responsibilities_of_the_rows_it_keeps(scene):
+    """Responsibilities computed before pruning follow the kept rows, so a pruned model still lifts."""
+    m = model(scene)
+    views = scene.train[:3]
+    resp = [r.clone() for r in compute_responsibilities(m, views, scene.background)]
+    scores = gate_importance(m, views, scene.background)
+    prune(m, replace(scene, train=views), ratio=0.5)
+    for k, (score, before) in enumerate(zip(scores, resp, strict=True)):
+        kept = torch.sort(torch.argsort(score, stable=True)[int(0.5 * len(score)) :]).values
+        torch.testing.assert_close(m.responsibilities[k], before[kept])
+    assert len(lift(m, 0.0)) == sum(len(e.frame(0.0)) for e in m.experts)
+
+
 def test_ratio_pruning_drops_the_least_important_rows_everywhere(scene):
     m = model(scene)
     views = scene.train[:3]
