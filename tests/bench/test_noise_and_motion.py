@@ -13,6 +13,8 @@ from bench.claims import (
     HELD,
     NA,
     NOISE,
+    at_least,
+    best,
     better,
     differs_across,
     evaluate,
@@ -41,6 +43,13 @@ class View:
 
     def metrics_of(self, column):
         return list(dict.fromkeys(m for _, c, m in self.values if c == column))
+
+
+class Scenes(View):
+    """A view whose ``@scenes`` are the columns s1 and s2."""
+
+    def columns(self, selector):
+        return ["s1", "s2"] if selector == "@scenes" else super().columns(selector)
 
 
 def psnr(**rows) -> dict:
@@ -94,6 +103,39 @@ def test_a_tie_fails_a_strict_claim_and_holds_a_non_strict_one(strict, status):
     assert better(View(psnr(A=28.0, B=28.0)), "A", "B", strict=strict).status == status
 
 
+def test_a_margin_moves_the_decision_boundary_and_the_noise_band_sits_around_it():
+    """A strict claim needs a lead above ``margin``; a non-strict one forgives a lag up to it. The seed
+    spread blurs the boundary, not zero: 0.1 dB from it is noise, 0.4 dB under it fails."""
+
+    def lead(a: float, noise: float = 0.0) -> View:
+        return View(psnr(A=a, B=28.0), {"PSNR": noise})
+
+    assert better(lead(28.6), "A", "B", margin=0.5).status == HELD
+    assert better(lead(28.4), "A", "B", margin=0.5).status == FAILED
+    assert better(lead(27.6), "A", "B", strict=False, margin=0.5).status == HELD
+    assert better(lead(27.4), "A", "B", strict=False, margin=0.5).status == FAILED
+    assert better(lead(28.6, 0.2), "A", "B", margin=0.5).status == NOISE
+    assert better(lead(28.1, 0.2), "A", "B", margin=0.5).status == FAILED
+
+
+def test_ties_and_edges_of_the_other_checks():
+    assert order(View(psnr(A=30.0, B=30.0)), ["A", "B"]).status == FAILED  # an order is strict by default
+    assert best(View(psnr(A=30.0, B=29.0)), "A", ["A", "B"], strict=True).status == HELD  # not against itself
+    assert at_least(View(psnr(A=0.1)), ["A"], 0.1, "PSNR", columns="@mean").status == HELD
+    flat = View({("A", "1", "PSNR"): 30.0, ("A", "2", "PSNR"): 30.0})
+    assert monotone(flat, ["A"], ["1", "2"]).status == HELD  # a tie is not a gain
+    rising = View({("A", "1", "LPIPS"): 0.1, ("A", "2", "LPIPS"): 0.2})  # LPIPS rising: getting worse
+    assert monotone(rising, ["A"], ["1", "2"], metric="LPIPS").status == HELD
+    falling = View({("A", "1", "LPIPS"): 0.2, ("A", "2", "LPIPS"): 0.1})
+    assert monotone(falling, ["A"], ["1", "2"], metric="LPIPS").status == FAILED
+
+
+def test_a_scene_where_one_row_has_a_value_names_no_winner():
+    """``differs_across`` needs a contest: a scene computed for B alone does not make B a winner."""
+    one_sided = {("A", "s1", "PSNR"): 30.0, ("B", "s1", "PSNR"): 29.0, ("B", "s2", "PSNR"): 31.0}
+    assert differs_across(Scenes(one_sided), ["A", "B"]).status == NA
+
+
 def test_equal_values_do_not_exceed_or_make_a_row_more_stable():
     tie = View({("A", "Average", "PSNR"): 30.0, ("B", "Max", "PSNR"): 30.0})
     assert exceeds(tie, "A", "Average", ["B"], "Max").status == FAILED
@@ -108,10 +150,6 @@ def test_the_winner_of_a_lower_is_better_metric_is_the_lowest():
     """``differs_across`` on LPIPS: A has the lowest LPIPS on both scenes, so one method dominates."""
     lpips = {("A", "s1", "LPIPS"): 0.10, ("B", "s1", "LPIPS"): 0.20, ("C", "s1", "LPIPS"): 0.30,
              ("A", "s2", "LPIPS"): 0.10, ("B", "s2", "LPIPS"): 0.30, ("C", "s2", "LPIPS"): 0.20}  # fmt: skip
-
-    class Scenes(View):
-        def columns(self, selector):
-            return ["s1", "s2"] if selector == "@scenes" else super().columns(selector)
 
     result = differs_across(Scenes(lpips), ["A", "B", "C"], metric="LPIPS")
     assert result.status == FAILED and result.detail == "s1: A, s2: A"
