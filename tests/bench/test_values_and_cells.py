@@ -118,6 +118,42 @@ def test_the_best_lpips_is_the_lowest(tmp_path, monkeypatch):
     assert ranks == {"E-D3DGS": 0, "MoE-GS (N=4)": 1, "4DGaussians": 2, "Ex4DGS": 3, "STG†": 4}
 
 
+def test_ties_share_a_rank_three_ranks_are_marked_and_a_lone_value_has_none(tmp_path, monkeypatch):
+    """Dense ranks: two rows tied at the top are both first and the next value is second; the fourth
+    value carries no mark; a column where one row has a value ranks nothing."""
+    sp = _plan("tab12", monkeypatch)
+    ws = Workspace(tmp_path)
+    psnr = {"4DGaussians": 30.0, "E-D3DGS": 30.0, "STG†": 29.0, "Ex4DGS": 28.0, "MoE-GS (N=4)": 27.0}
+    for s in sp.slots:
+        if s.task is not None:
+            write_ok_result(ws, s.task, psnr=psnr[s.row], ssim=0.8, lpips=0.1, psnr_dynamic=21.0)
+    values = SpecValues(sp, ws)
+    ranks = _ranks(values, STAND_IN, "PSNR")
+    assert ranks == {"4DGaussians": 0, "E-D3DGS": 0, "STG†": 1, "Ex4DGS": 2, "MoE-GS (N=4)": 3}
+    assert cell_tex(values, "Ex4DGS", STAND_IN, "PSNR", ranks).startswith(r"\rankthird{28.00}")
+    assert cell_tex(values, "MoE-GS (N=4)", STAND_IN, "PSNR", ranks).startswith("27.00")
+    assert cell_tex(values, "STG†", STAND_IN, "LPIPS", {}) == "0.100"  # the dynamic region: under PSNR only
+
+    lone = Workspace(tmp_path / "lone")
+    for s in sp.slots:
+        if s.task is not None and s.row == "STG†":
+            write_ok_result(lone, s.task, psnr=29.0)
+    assert _ranks(SpecValues(sp, lone), STAND_IN, "PSNR") == {}
+
+
+def test_a_stand_in_cell_shows_the_papers_average_beside_ours_and_its_dynamic_region(tmp_path, monkeypatch):
+    sp = _plan("tab03", monkeypatch)
+    ws = Workspace(tmp_path)
+    for s in sp.slots:
+        if s.task is not None:
+            write_ok_result(ws, s.task, psnr=30.0, ssim=0.8, lpips=0.1, psnr_dynamic=21.0)
+    values = SpecValues(sp, ws)
+    average = values.paper.printed("MoE-GS (N=3)", AVERAGE, "PSNR")
+    assert average is not None
+    text = cell_tex(values, "MoE-GS (N=3)", STAND_IN, "PSNR", {})
+    assert text == rf"30.00\dynregion{{21.00}}\paperref{{{average}}}"
+
+
 def test_a_stand_in_value_shows_the_papers_number_without_a_delta(tmp_path, monkeypatch):
     sp = _plan("tab06", monkeypatch)
     ws = Workspace(tmp_path)
