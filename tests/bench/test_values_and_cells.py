@@ -81,6 +81,73 @@ def test_the_average_and_dataset_means_need_all_of_the_papers_scenes(tmp_path, m
     assert values.deltas() == []
 
 
+def test_a_cell_over_seeds_needs_every_seed_and_a_nan_metric_is_no_value(tmp_path, monkeypatch):
+    """Mutant trains 3 seeds at quick: one failed seed leaves the cell failed, not the mean of the other
+    two; a NaN metric (an empty region, a diverged run) prints as no value, not as "nan"."""
+    sp = _plan("tab17", monkeypatch, "dnerf:mutant")
+    slots = [s for s in sp.slots if s.task is not None and s.row == "Grid4D"]
+    assert len({s.seed for s in slots}) == 3
+    ws = Workspace(tmp_path)
+    for s in slots[:-1]:
+        write_ok_result(ws, s.task, psnr=30.0)
+    write_ok_result(ws, slots[-1].task, {"status": "failed", "error": "diverged"})
+    cell = SpecValues(sp, ws).cells[("Grid4D", "Mutant", "PSNR")]
+    assert cell.value is None and cell.status == "failed" and "diverged" in cell.detail
+
+    for s in slots:
+        write_ok_result(ws, s.task, psnr=float("nan"))
+    cell = SpecValues(sp, ws).cells[("Grid4D", "Mutant", "PSNR")]
+    assert cell.value is None and "not reported" in cell.detail
+
+
+def test_a_stability_run_on_a_stand_in_is_not_comparable(tmp_path, monkeypatch):
+    """Table IX's Min / Max / Average over seeds on the N3V stand-in: values, but no delta to the paper."""
+    sp = _plan("tab09", monkeypatch)
+    ws = Workspace(tmp_path)
+    for s in sp.slots:
+        if s.task is not None:
+            write_ok_result(ws, s.task, psnr=25.0)
+    values = SpecValues(sp, ws)
+    cell = values.cells[("E-D3DGS", "Average", "PSNR")]
+    assert cell.value == pytest.approx(25.0) and not cell.comparable
+    assert values.deltas() == []
+
+
+def test_the_scene_mean_of_a_claim_is_over_scene_columns_not_the_average(tmp_path, monkeypatch):
+    """With all eight D-NeRF scenes the Average column has a value; ``@scenes`` (what claims compare and
+    ``@mean`` averages) still lists the scenes only."""
+    from bench.datasets import get_dataset
+
+    names = [f"dnerf:{n}" for n in get_dataset("dnerf").scene_names()]
+    sp = _plan("tab17", monkeypatch, *names)
+    ws = Workspace(tmp_path)
+    psnr = {name: 30.0 + i for i, name in enumerate(names)}
+    for s in sp.slots:
+        if s.task is not None:
+            write_ok_result(ws, s.task, psnr=psnr[s.scene.name])
+    values = SpecValues(sp, ws)
+    assert values.cells[("Grid4D", AVERAGE, "PSNR")].value == pytest.approx(33.5)
+    assert AVERAGE not in values.columns("@scenes") and len(values.columns("@scenes")) == 8
+    assert values.get("Grid4D", MEAN, "PSNR") == pytest.approx(33.5)
+
+
+def test_cells_mixing_real_and_stand_in_scenes_are_not_comparable():
+    from types import SimpleNamespace
+
+    from bench.values import _combine
+
+    class Results:
+        def status(self, slot):
+            return "ok", ""
+
+        def value(self, slot, metric_name):
+            return 20.0
+
+    real, stand_in = (SimpleNamespace(scene=SimpleNamespace(real=r)) for r in (True, False))
+    assert _combine([real, real], Results(), "PSNR").comparable
+    assert not _combine([real, stand_in], Results(), "PSNR").comparable
+
+
 def test_the_papers_mean_is_its_average_column(tmp_path, monkeypatch):
     values = SpecValues(_plan("tab03", monkeypatch), Workspace(tmp_path))
     average = values.paper.get("MoE-GS (N=3)", AVERAGE, "PSNR")
