@@ -13,6 +13,7 @@ from helpers.scenes import tiny_scene
 from moegs.experts import get_expert_class
 from moegs.moe import MoEGS, RouterConfig, compute_responsibilities, gate_importance, lift, prune
 from moegs.render import rasterize
+from moegs.render.projection import rgb_to_sh0
 
 
 @pytest.fixture(scope="module")
@@ -170,3 +171,22 @@ def test_lift_scales_opacity_and_needs_responsibilities(scene):
     expected = torch.cat([parts[0].opacities * resp[0], parts[1].opacities * resp[1][rows]])
     torch.testing.assert_close(fused.opacities, expected)
     assert rasterize(fused, scene.test[0].camera).image.shape == (24, 24, 3)
+
+
+def test_lift_gives_an_rgb_expert_the_dc_term_of_the_others_sh(scene):
+    """STG ``color='lite'`` splats RGB; fused with an SH expert its colours become the DC coefficient (the
+    same colour under the plain renderer) and its higher bands zero, while the SH expert keeps its bands."""
+    stg = get_expert_class("stg")
+    cfg = stg.config_class.from_preset("quick")
+    lite = stg.from_scene(scene, replace(cfg, color="lite")).eval()
+    static = experts(scene, ("static",))[0]
+    static.active_sh_degree = 2  # as after training: 9 SH coefficients
+    m = MoEGS([static, lite], RouterConfig.from_preset("quick"))
+    compute_responsibilities(m, scene.train[:2], scene.background)
+    fused = lift(m, 1.0)
+    sh, rgb = m.experts[0].frame(1.0).sh, m.experts[1].frame(1.0).colors
+    n = len(sh)
+    assert sh.shape[1] == 9 and fused.sh.shape[1:] == sh.shape[1:]
+    torch.testing.assert_close(fused.sh[:n], sh)
+    torch.testing.assert_close(fused.sh[n:, 0], rgb_to_sh0(rgb))
+    assert (fused.sh[n:, 1:] == 0).all()
