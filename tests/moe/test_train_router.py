@@ -67,6 +67,37 @@ def test_the_router_trains_on_the_training_views_only(scene, experts, monkeypatc
     assert len(seen) == 6 and all(any(c is t for t in train_cameras) for c in seen)
 
 
+def test_each_step_advances_the_schedules_and_uses_the_configured_ssim_weight(
+    scene, experts, tmp_path, monkeypatch
+):
+    import moegs.moe.train as router_training
+    from moegs.moe.model import read_router
+    from moegs.train.optim import Optimizers
+
+    steps, weights = [], []
+    set_step, photometric = Optimizers.set_step, router_training.photometric
+    monkeypatch.setattr(Optimizers, "set_step", lambda self, s: (steps.append(s), set_step(self, s))[1])
+    monkeypatch.setattr(
+        router_training, "photometric", lambda a, b, w: (weights.append(w), photometric(a, b, w))[1]
+    )
+    result = train_router(experts, scene, cfg(iterations=4, lambda_dssim=0.3), tmp_path)
+    assert steps == [1, 2, 3, 4] and weights == [0.3] * 4
+    history = read_router(tmp_path / "router.safetensors")["history"]
+    assert len(history) == 4 and result["final_loss"] == history[-1]
+
+
+def test_the_winner_share_is_the_mean_over_the_views(scene, experts, tmp_path):
+    from moegs.moe.model import winner_shares
+
+    train_router(experts, scene, cfg(iterations=5), tmp_path)
+    model = load_moe(tmp_path, experts)
+    views = list(scene.test) + list(scene.train)
+    per_view = [winner_shares(model.render(v.camera, scene.background).gates) for v in views]
+    assert len({tuple(s) for s in per_view}) > 1  # views differ, so the mean is not any one of them
+    mean = torch.tensor(per_view).mean(0).tolist()
+    assert evaluate_moe(model, views, scene.background)["winner_share"] == pytest.approx(mean)
+
+
 def test_param_groups_have_the_paper_rates(experts):
     groups = {g.name: g for g in router_param_groups(MoEGS(experts, cfg()))}
     assert set(groups) == {"w", "w_time", "phi"}
