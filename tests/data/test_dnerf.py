@@ -110,6 +110,29 @@ def test_errors_name_file_key_and_size(tmp_path):
         load_dnerf(tmp_path, background="green")
 
 
+def test_times_out_of_range_repeated_times_and_a_test_image_of_another_size(tmp_path):
+    """A time outside [0, 1] is refused; views sharing a time are one frame; a test image must have the
+    training images' size (one camera model for the whole scene)."""
+    fx.write_dnerf(tmp_path, counts={"train": 4, "test": 1})
+    path = tmp_path / "transforms_train.json"
+    meta = json.loads(path.read_text())
+    for i, frame in enumerate(meta["frames"]):
+        frame["time"] = [0.0, 0.0, 0.5, 1.0][i]
+    path.write_text(json.dumps(meta))
+    assert load_dnerf(tmp_path, num_points=0).num_frames == 3
+    meta["frames"][2]["time"] = 1.5
+    path.write_text(json.dumps(meta))
+    with pytest.raises(
+        ValueError, match=r"transforms_train\.json: frames\[2\]\.time = 1\.5 is outside \[0, 1\]"
+    ):
+        load_dnerf(tmp_path, num_points=0)
+
+    fx.write_dnerf(tmp_path, counts={"train": 2, "test": 1})
+    fx._save(np.zeros((12, 12, 4), np.uint8), tmp_path / "test" / "r_000.png")
+    with pytest.raises(ValueError, match=r"r_000\.png: image is 12x12 but 16x16"):
+        load_dnerf(tmp_path, num_points=0).test[0].image()
+
+
 # -- real data --------------------------------------------------------------------------------------
 @pytest.mark.realdata
 def test_mutant(mutant_root):
