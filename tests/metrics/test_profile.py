@@ -91,6 +91,9 @@ def test_mask_and_unavailable_lpips(frame, degraded, monkeypatch, tmp_path):
     assert out["masked"]
     if lpips_available():  # staged under MOEGS_DATA: a missing value is a regression, not a missing file
         assert out["lpips"] is not None and out["lpips_unavailable"] is None
+        region = lpips_fn(degraded["blur"], frame, "alex", "legacy01", mask=mask.float()).item()
+        assert out["lpips"] == pytest.approx(region, rel=1e-6)  # the region's LPIPS, not the image's
+        assert out["lpips"] != pytest.approx(evaluate_images(degraded["blur"], frame, "moegs")["lpips"])
     else:
         assert out["lpips"] is None and out["lpips_unavailable"]
     assert out["psnr"] == pytest.approx(psnr(degraded["blur"], frame, mask).item(), abs=1e-6)
