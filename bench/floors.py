@@ -26,9 +26,16 @@ MOE_EXPERTS = ("deformable", "grid4d")
 """The pair ``tests/moe/test_mutant_moe.py`` routes (the volume-aware pixel router, code conventions)."""
 
 
-def measure_cell(seed: int, out: Path) -> dict:
-    """Train every expert and the router on ``SCENE`` at the quick preset with ``seed``; the quantities the
-    real-data tests assert on."""
+def cell_name(seed: int, threads: int) -> str:
+    """``s<seed>_t<threads>``: the cell's JSON under ``out`` and, prefixed ``router_``, its router folder."""
+    return f"s{seed}_t{threads}"
+
+
+def measure_cell(seed: int, threads: int, out: Path) -> dict:
+    """Train every expert and the router on ``SCENE`` at the quick preset with ``seed`` (in a process with
+    ``threads`` torch threads); the quantities the real-data tests assert on. Each cell trains its own
+    router: the experts of one seed differ between thread counts, so a router folder shared by them would
+    be resumed over other experts."""
     import torch
 
     from moegs.data import load_scene
@@ -48,12 +55,13 @@ def measure_cell(seed: int, out: Path) -> dict:
     scene = trained[MOE_EXPERTS[0]][1]
     config = RouterConfig.from_preset(router_preset("quick", "code"))
     config = dataclasses.replace(config, seed=seed)
-    result = train_router(experts, scene, config, out / f"router_s{seed}", progress=False)
+    router_dir = out / f"router_{cell_name(seed, threads)}"
+    result = train_router(experts, scene, config, router_dir, progress=False)
     test = result["test"]
     values["moe/psnr"] = test["psnr"]
     values["moe/margin_to_better_expert"] = test["psnr"] - max(e["psnr"] for e in test["experts"])
     values["moe/min_winner_share"] = min(test["winner_share"])
-    model = load_moe(out / f"router_s{seed}", experts)
+    model = load_moe(router_dir, experts)
     with torch.no_grad():
         gates = model.render(scene.test[0].camera, scene.background).gates
     values["moe/gate_spread_view0"] = float((gates[0] - 0.5).abs().mean())
@@ -67,7 +75,7 @@ def run_cells(seeds: list[int], threads: list[int], out: Path) -> dict[str, dict
     cells = {}
     for t in threads:
         for s in seeds:
-            path = out / f"s{s}_t{t}.json"
+            path = out / f"{cell_name(s, t)}.json"
             if not path.is_file():
                 env = {**os.environ, "OMP_NUM_THREADS": str(t), "MKL_NUM_THREADS": str(t)}
                 cmd = [sys.executable, "-m", "bench.floors", "--cell", str(s), "--out", str(out)]
@@ -106,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
 
         threads = int(os.environ.get("OMP_NUM_THREADS", torch.get_num_threads()))
         torch.set_num_threads(threads)
-        write_json(out / f"s{args.cell}_t{threads}.json", measure_cell(args.cell, out))
+        write_json(out / f"{cell_name(args.cell, threads)}.json", measure_cell(args.cell, threads, out))
         return 0
     seeds = [int(s) for s in args.seeds.split(",")]
     threads = [int(t) for t in args.threads.split(",")]

@@ -1,9 +1,10 @@
 """``bench.floors``: the real-data floors come from the lowest value over seeds and thread counts; cells
-already measured are read back, not run again."""
+already measured are read back, not run again; every cell trains its own router."""
 
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import pytest
 
@@ -28,3 +29,32 @@ def test_the_summary_is_the_range_over_every_cell_and_cells_on_disk_are_reused(t
         "max": 29.3,
         "cells": {k: v["moe/psnr"] for k, v in cells.items()},
     }
+
+
+def test_each_cell_trains_its_own_router(tmp_path, monkeypatch):
+    """One seed's experts differ between 1 and 2 threads (Grid4D: 855 vs 856 Gaussians at seed 2): a router
+    folder shared by the two cells was resumed over the other cell's experts (and refused them)."""
+    import moegs.data
+    import moegs.moe
+    import moegs.recipes
+    import moegs.train.entry
+
+    class Trained(Exception):
+        pass
+
+    folders = []
+
+    def train_router(experts, scene, config, out_dir, **kwargs):
+        folders.append(out_dir)
+        raise Trained  # the router is all this test looks at
+
+    monkeypatch.setattr(moegs.recipes, "config_for", lambda *a, **k: SimpleNamespace(load_kwargs={}))
+    monkeypatch.setattr(moegs.data, "load_scene", lambda *a, **k: "scene")
+    monkeypatch.setattr(
+        moegs.train.entry, "train_recipe", lambda *a, **k: ("expert", {"test": {"psnr": 1.0}})
+    )
+    monkeypatch.setattr(moegs.moe, "train_router", train_router)
+    for threads in (1, 2):
+        with pytest.raises(Trained):
+            floors.measure_cell(2, threads, tmp_path)
+    assert folders == [tmp_path / "router_s2_t1", tmp_path / "router_s2_t2"]
