@@ -143,6 +143,46 @@ def test_an_expert_keeps_its_near_plane_in_a_shared_pass(scene):
     assert (image - full.image).abs().max() > 0.05  # the near half was in view: culling it shows
 
 
+def test_the_volume_router_keeps_an_experts_antialiasing_and_near_plane(scene):
+    """The volume router renders its experts' Gaussians jointly; over one antialiased expert (Ex4DGS) whose
+    near plane cuts half its Gaussians it still renders that expert (its gate is ~1)."""
+    expert = make_expert("ex4dgs", scene, 2)
+    camera = scene.test[0].camera
+    with torch.no_grad():
+        depth = camera_points(expert.frame(camera.time).means, camera)[:, 2]
+    expert.config = replace(expert.config, near=float(depth.median()))
+    model = MoEGS([expert], config("volume"))
+    with torch.no_grad():
+        out = model.render(camera, scene.background)
+        alone = expert.render(camera, scene.background)[0]
+    torch.testing.assert_close(out.image, alone, atol=1e-4, rtol=0)
+
+
+def test_the_volume_gate_is_a_sigmoid_of_the_weight_plus_the_time_term(scene):
+    expert = make_expert("static", scene)
+    model = MoEGS([expert, make_expert("static", scene, 1)], config("volume"))
+    weights = model.router.weights
+    with torch.no_grad():
+        weights.mix[0].normal_()
+        weights.time[0].normal_()
+        expected = torch.sigmoid(weights.mix[0][:, 0] + 0.5 * weights.time[0][:, 0])
+        torch.testing.assert_close(model.router.gated(0, expert, 0.5), expected)
+
+
+def test_the_pixel_router_sees_the_time(scene):
+    """Two static experts render the same images at every time; the pixel router's logits still change
+    with the time, its input channel."""
+    model = MoEGS([make_expert("static", scene), make_expert("static", scene, 1)], config("pixel"))
+    camera = scene.test[0].camera
+    with torch.no_grad():
+        for p in model.router.parameters():
+            p.normal_()
+        early = model.render(replace(camera, time=0.0), scene.background)
+        late = model.render(replace(camera, time=1.0), scene.background)
+    torch.testing.assert_close(early.expert_images, late.expert_images)
+    assert (early.logits - late.logits).abs().max() > 1e-3
+
+
 def test_mixed_colour_widths_are_padded_and_decoded(scene):
     """An STG expert with the full feature model (9 channels + decoder) renders in the same pass as RGB."""
     stg = make_expert("stg", scene)
