@@ -19,6 +19,16 @@ def _plan(table: str, monkeypatch, *real: str):
     return bench.plan.make_plan([table], get_preset("quick")).specs[0]
 
 
+def _uniform(table: str, monkeypatch, tmp_path, **metrics: float) -> SpecValues:
+    """``table``'s values (stand-ins only) with every cell's result holding the same ``metrics``."""
+    sp = _plan(table, monkeypatch)
+    ws = Workspace(tmp_path)
+    for s in sp.slots:
+        if s.task is not None:
+            write_ok_result(ws, s.task, **metrics)
+    return SpecValues(sp, ws)
+
+
 def test_the_seeds_axis_prints_min_max_and_average_of_every_seed(tmp_path, monkeypatch):
     sp = _plan("tab09", monkeypatch)
     assert len(sp.seeds) >= 3
@@ -102,12 +112,7 @@ def test_a_cell_over_seeds_needs_every_seed_and_a_nan_metric_is_no_value(tmp_pat
 
 def test_a_stability_run_on_a_stand_in_is_not_comparable(tmp_path, monkeypatch):
     """Table IX's Min / Max / Average over seeds on the N3V stand-in: values, but no delta to the paper."""
-    sp = _plan("tab09", monkeypatch)
-    ws = Workspace(tmp_path)
-    for s in sp.slots:
-        if s.task is not None:
-            write_ok_result(ws, s.task, psnr=25.0)
-    values = SpecValues(sp, ws)
+    values = _uniform("tab09", monkeypatch, tmp_path, psnr=25.0)
     cell = values.cells[("E-D3DGS", "Average", "PSNR")]
     assert cell.value == pytest.approx(25.0) and not cell.comparable
     assert values.deltas() == []
@@ -209,12 +214,7 @@ def test_ties_share_a_rank_three_ranks_are_marked_and_a_lone_value_has_none(tmp_
 
 
 def test_a_stand_in_cell_shows_the_papers_average_beside_ours_and_its_dynamic_region(tmp_path, monkeypatch):
-    sp = _plan("tab03", monkeypatch)
-    ws = Workspace(tmp_path)
-    for s in sp.slots:
-        if s.task is not None:
-            write_ok_result(ws, s.task, psnr=30.0, ssim=0.8, lpips=0.1, psnr_dynamic=21.0)
-    values = SpecValues(sp, ws)
+    values = _uniform("tab03", monkeypatch, tmp_path, psnr=30.0, psnr_dynamic=21.0)
     average = values.paper.printed("MoE-GS (N=3)", AVERAGE, "PSNR")
     assert average is not None
     text = cell_tex(values, "MoE-GS (N=3)", STAND_IN, "PSNR", {})
@@ -222,12 +222,7 @@ def test_a_stand_in_cell_shows_the_papers_average_beside_ours_and_its_dynamic_re
 
 
 def test_a_stand_in_value_shows_the_papers_number_without_a_delta(tmp_path, monkeypatch):
-    sp = _plan("tab06", monkeypatch)
-    ws = Workspace(tmp_path)
-    for s in sp.slots:
-        if s.task is not None:
-            write_ok_result(ws, s.task, psnr=20.0)
-    values = SpecValues(sp, ws)
+    values = _uniform("tab06", monkeypatch, tmp_path, psnr=20.0)
     printed = values.paper.printed("Pixel Router", "PSNR", "PSNR")
     assert printed is not None
     text = cell_tex(values, "Pixel Router", "PSNR", "PSNR", {})
