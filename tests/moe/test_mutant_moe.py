@@ -52,8 +52,8 @@ def test_moe_reaches_the_better_expert(routed):
         alone = trained_expert(name, "dnerf:mutant").metrics["test"]
         if alone["num_views"] == test["num_views"]:
             assert experts[name] == pytest.approx(alone["psnr"], abs=1e-3)
-    # the blend lands at the better expert: bench.floors measured MoE minus the better expert from -0.039
-    # to +0.093 dB over 3 seeds x {1, 2} threads (MoE 28.17-28.75 dB); the 0.3 dB band is not a coin flip
+    # the blend lands at the better expert: bench.floors measured MoE minus the better expert from -0.138
+    # to +0.051 dB over 3 seeds x {1, 2} threads (MoE 28.39-28.89 dB, 2026-12-03); the 0.3 dB band holds
     assert test["psnr"] >= max(experts.values()) - 0.3, (test["psnr"], experts)
     assert test["psnr"] > min(experts.values()) + 1.0, (test["psnr"], experts)
 
@@ -67,11 +67,11 @@ def test_gate_maps_are_not_uniform(routed):
     with torch.no_grad():
         out = model.render(scene.test[0].camera, scene.background)
     spread = (out.gates[0] - 0.5).abs()
-    # the router commits to one expert in places: |gate - 0.5| averages 0.0390-0.0445 over 3 seeds x {1, 2}
-    # threads (bench.floors); 0.05 sat above every measurement, the issue-15 coin flip
+    # the router commits to one expert in places: |gate - 0.5| averages 0.0405-0.0459 over 3 seeds x {1, 2}
+    # threads (bench.floors, 2026-12-03); 0.05 sat above most measurements, the issue-15 coin flip
     assert float(spread.mean()) > 0.035
     shares = json.loads((routed / "metrics.json").read_text())["test"]["winner_share"]
-    assert min(shares) > 0.003  # and each expert wins somewhere (smaller share measured: 0.50-1.00%)
+    assert min(shares) > 0.001  # and each expert wins somewhere (smaller share measured: 0.35-1.49%)
     figures = sorted((routed / "gates").glob("view_*.png"))
     assert len(figures) == 2
     import imageio.v3 as iio
