@@ -106,4 +106,6 @@ def test_evaluation_reports_it(gen):
     exact = evaluate_renderer(lambda cam: targets[round(cam.time * 5)], views, regions=True)
     assert frozen["motion_r2"] == pytest.approx(0.0, abs=1e-9)
     assert exact["motion_r2"] == pytest.approx(1.0)
+    first_three = evaluate_renderer(lambda cam: targets[round(cam.time * 5)], views[:3], regions=True)
+    assert first_three["motion_r2"] == pytest.approx(1.0)  # every view counts, the one at t = 0 too
     assert evaluate_renderer(lambda cam: targets[0], views, regions=False)["motion_r2"] is None
