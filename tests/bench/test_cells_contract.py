@@ -84,7 +84,6 @@ def test_distill_cell(ctx):
     """The KD loss trains the student: its 20 tiny steps lift it clear of the untrained student (measured on
     an AMD EPYC: untrained 6.95 dB, distilled 9.16, the same student trained 20 steps on the ground truth
     9.12), which a floor of 5 dB could not tell apart."""
-    from bench.cells import distill as distill_kind
     from bench.cells import moe as moe_kind
     from bench.cells._lib import evaluate_model, expert_task, recipe_of
     from moegs.train.entry import build_expert
@@ -92,7 +91,7 @@ def test_distill_cell(ctx):
     params = {"student": "static", "teacher": EXPERTS, "router": "vapr", "weighted": True}
     out = _run(ctx, "distill", params)
     assert out["details"]["num_gaussians"] > 0
-    scene = moe_kind.moe_scene(ctx, distill_kind._teacher(ctx.task))
+    scene = moe_kind.moe_scene(ctx, moe_kind.router_task(ctx.task, EXPERTS, "vapr"))
     untrained = build_expert(recipe_of(ctx, expert_task(ctx.task, "static")), scene).eval()
     before = evaluate_model(ctx, untrained, scene, [])["metrics"]["psnr"]
     assert out["metrics"]["psnr"] > before + 1.0, (before, out["metrics"]["psnr"])
