@@ -7,7 +7,7 @@ coordinates produced by ``K``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import torch
 from torch import Tensor
@@ -26,6 +26,10 @@ class Camera:
         camera_id: index of the physical camera (per-camera terms, e.g. E-D3DGS's time offset).
         frame: integer frame index within the scene (``-1`` if not applicable).
         name: identifier used in logs and outputs (e.g. ``cam00/0012``).
+
+    The intrinsics are also kept as Python floats (``fx``, ``fy``, ``cx``, ``cy``), read once when the
+    camera is made, so a camera on a GPU answers them without waiting for the device; ``to``,
+    ``at_time`` and ``with_planes`` carry them (and the checks already passed) over.
     """
 
     K: Tensor
@@ -38,6 +42,7 @@ class Camera:
     camera_id: int = 0
     frame: int = -1
     name: str = ""
+    _intrinsics: tuple[float, float, float, float] | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if tuple(self.K.shape) != (3, 3):
@@ -50,13 +55,19 @@ class Camera:
             raise ValueError(f"Camera size must be positive, got {self.width}x{self.height}")
         if not (0.0 < self.near < self.far):
             raise ValueError(f"Camera needs 0 < near < far, got near={self.near}, far={self.far}")
-        if not torch.isfinite(self.K).all() or not torch.isfinite(self.world_to_camera).all():
+        if self._intrinsics is None:  # a new camera: check its values once, on the host
+            object.__setattr__(self, "_intrinsics", self._checked_intrinsics())
+
+    def _checked_intrinsics(self) -> tuple[float, float, float, float]:
+        K, w2c = self.K.detach().cpu(), self.world_to_camera.detach().cpu()
+        if not torch.isfinite(K).all() or not torch.isfinite(w2c).all():
             raise ValueError(f"Camera {self.name!r} has non-finite intrinsics or extrinsics")
-        fx, fy = float(self.K[0, 0]), float(self.K[1, 1])
+        fx, fy = float(K[0, 0]), float(K[1, 1])
         if not (fx > 0 and fy > 0):
             raise ValueError(f"Camera {self.name!r} needs positive focal lengths, got fx={fx}, fy={fy}")
-        if abs(float(torch.linalg.det(self.world_to_camera[:3, :3].double()))) < 1e-9:
+        if abs(float(torch.linalg.det(w2c[:3, :3].double()))) < 1e-9:
             raise ValueError(f"Camera {self.name!r} has a singular world_to_camera rotation")
+        return fx, fy, float(K[0, 2]), float(K[1, 2])
 
     # -- derived quantities -------------------------------------------------------------------
     @property
@@ -65,19 +76,19 @@ class Camera:
 
     @property
     def fx(self) -> float:
-        return float(self.K[0, 0])
+        return self._intrinsics[0]
 
     @property
     def fy(self) -> float:
-        return float(self.K[1, 1])
+        return self._intrinsics[1]
 
     @property
     def cx(self) -> float:
-        return float(self.K[0, 2])
+        return self._intrinsics[2]
 
     @property
     def cy(self) -> float:
-        return float(self.K[1, 2])
+        return self._intrinsics[3]
 
     @property
     def camera_to_world(self) -> Tensor:
@@ -116,13 +127,22 @@ class Camera:
             raise ValueError(f"scale factor must be positive, got {factor}")
         K = self.K.clone()
         K[:2] *= factor
-        return replace(self, K=K, width=round(self.width * factor), height=round(self.height * factor))
+        return replace(
+            self, K=K, width=round(self.width * factor), height=round(self.height * factor), _intrinsics=None
+        )
 
     def to(self, device: torch.device | str) -> Camera:
+        """The same camera with its tensors on ``device`` (itself when they are there already)."""
+        if self.K.device == torch.device(device) and self.world_to_camera.device == torch.device(device):
+            return self
         return replace(self, K=self.K.to(device), world_to_camera=self.world_to_camera.to(device))
 
     def at_time(self, time: float) -> Camera:
         return replace(self, time=float(time))
+
+    def with_planes(self, near: float, far: float) -> Camera:
+        """The same camera with other clipping distances."""
+        return replace(self, near=near, far=far)
 
     def pose_key(self) -> bytes:
         """The camera apart from its time: intrinsics, pose and image size, as hashable bytes."""

@@ -20,7 +20,15 @@ import json
 import sys
 from pathlib import Path
 
-from moegs.cli_types import add_resume_arguments, positive_int, scene_name, seed, unit_scale, unit_time
+from moegs.cli_types import (
+    add_device_argument,
+    add_resume_arguments,
+    positive_int,
+    scene_name,
+    seed,
+    unit_scale,
+    unit_time,
+)
 from moegs.threads import start_cpu_workers
 
 
@@ -89,14 +97,23 @@ def _run_dir(path: str) -> tuple[Path, dict]:
     return run, meta
 
 
-def _load_run(path: str):
-    """``(run folder, run config, scene, expert)`` of a finished or interrupted run."""
+def _load_run(path: str, device=None):
+    """``(run folder, run config, scene, expert)`` of a finished or interrupted run; the expert on ``device``
+    (None: the CPU) and the scene placed beside it."""
     from moegs.train.entry import load_trained
 
     run, meta = _run_dir(path)
     scene = _load_scene(meta)
-    expert, _ = load_trained(run, scene, expect=meta["expert"])
-    return run, meta, scene, expert
+    expert, _ = load_trained(run, scene, expect=meta["expert"], device=device)
+    return run, meta, scene.to(device or "cpu"), expert
+
+
+def describe_device(device) -> str:
+    """``cpu`` or ``cuda:0 (NVIDIA H100 80GB HBM3)``: the device a command computes on."""
+    from moegs.device import device_name, gpu_model
+
+    gpu = gpu_model(device)
+    return device_name(device) + (f" ({gpu})" if gpu else "")
 
 
 def parse_overrides(items: list[str]) -> dict[str, object]:
@@ -153,7 +170,10 @@ def _cmd_train(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, **recipe.load_kwargs)
     print(scene.summary())
     print("recipe: " + "; ".join(recipe.steps))
-    _, result = train_recipe(recipe, scene, out, resume=not args.no_resume, progress=not args.quiet)
+    print(f"device: {describe_device(args.device)}")
+    _, result = train_recipe(
+        recipe, scene, out, device=args.device, resume=not args.no_resume, progress=not args.quiet
+    )
     test = result["test"]
     scores = (
         f"test PSNR {test['psnr']:.2f} SSIM {test['ssim']:.4f}"
@@ -185,7 +205,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     from moegs.io import write_json
     from moegs.train.evaluate import evaluate
 
-    run, meta, scene, expert = _load_run(args.run)
+    run, meta, scene, expert = _load_run(args.run, args.device)
     result = evaluate(expert, scene.test, scene.background, args.profile, meta["train"]["backend"])
     write_json(run / f"eval-{args.profile}.json", result)
     lpips = "n/a" if result["lpips"] is None else f"{result['lpips']:.4f}"
@@ -206,7 +226,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
     from moegs.metrics import psnr
     from moegs.train.evaluate import render_view
 
-    run, meta, scene, expert = _load_run(args.run)
+    run, meta, scene, expert = _load_run(args.run, args.device)
     out = Path(args.out) if args.out else run / "renders"
     out.mkdir(parents=True, exist_ok=True)
     frames, rows = [], []
@@ -292,6 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--no-resume", action="store_true", help="start over even if the run folder has a checkpoint"
     )
     add_resume_arguments(p, "expert")
+    add_device_argument(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("recipe", help="the config a run uses: dataset preset, scene values, reductions")
@@ -311,11 +332,13 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["moegs", "clean"],
         help="metric profile: moegs (paper conventions) or clean",
     )
+    add_device_argument(p, "render and score")
 
     p = sub.add_parser("render", help="render the test views to PNGs, an mp4 and a per-view PSNR csv")
     p.add_argument("run")
     p.add_argument("--out", help="output folder (default <run>/renders)")
     p.add_argument("--fps", type=positive_int, default=10)
+    add_device_argument(p, "render")
 
     p = sub.add_parser("export", help="write the Gaussians at one time as a 3DGS PLY")
     p.add_argument("run")

@@ -47,6 +47,27 @@ def add_resume_arguments(parser: argparse.ArgumentParser, what: str) -> None:
     )
 
 
+def device(text: str):
+    """argparse type: ``auto|cpu|cuda[:i]`` resolved to a ``torch.device`` (``moegs.device``): a device
+    this machine lacks is refused before any work."""
+    from moegs.device import resolve_device
+
+    try:
+        return resolve_device(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
+def add_device_argument(parser: argparse.ArgumentParser, what: str = "train and evaluate") -> None:
+    """``--device`` of a command that computes with torch."""
+    parser.add_argument(
+        "--device",
+        type=device,
+        default="auto",
+        help=f"where to {what}: auto (a GPU when torch sees one, else the CPU), cpu, cuda or cuda:<index>",
+    )
+
+
 def scene_name(text: str) -> str:
     """argparse type: ``<dataset>:<scene>`` with a registered dataset (the folder is looked up later)."""
     from moegs.data import parse_scene_name

@@ -25,7 +25,7 @@ import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from moegs.cli_types import frame_window, scene_name
+from moegs.cli_types import add_device_argument, frame_window, scene_name
 
 if TYPE_CHECKING:
     from moegs.recipes import Recipe
@@ -57,10 +57,11 @@ def scene_kwargs(recipe, frames: tuple[int, int] | None) -> dict[str, Any]:
 
 
 def run_expert(
-    recipe: Recipe, out: Path, frames: tuple[int, int] | None, scenes: dict, progress: bool
+    recipe: Recipe, out: Path, frames: tuple[int, int] | None, scenes: dict, progress: bool, device=None
 ) -> dict:
-    """Train (or resume) the expert of ``recipe`` (``moegs.recipes.config_for``) into ``out``; returns the
-    loop's result. ``scenes`` caches loaded scenes by their loader arguments."""
+    """Train (or resume) the expert of ``recipe`` (``moegs.recipes.config_for``) into ``out`` on ``device``
+    (None: the CPU); returns the loop's result. ``scenes`` caches loaded scenes by their loader
+    arguments."""
     from moegs.data import load_scene
     from moegs.train.entry import train_recipe
 
@@ -68,7 +69,7 @@ def run_expert(
     key = json.dumps(kwargs, sort_keys=True, default=str)
     if key not in scenes:
         scenes[key] = load_scene(recipe.scene, **kwargs)
-    return train_recipe(recipe, scenes[key], out, progress=progress)[1]
+    return train_recipe(recipe, scenes[key], out, device=device, progress=progress)[1]
 
 
 def _image_size(test: dict) -> str | None:
@@ -132,8 +133,10 @@ def compare(
     out: str | Path | None = None,
     frames: tuple[int, int] | None = None,
     progress: bool = True,
+    device=None,
 ) -> dict:
-    """Train and evaluate ``experts`` on ``scene`` at ``preset``; write and return the table.
+    """Train and evaluate ``experts`` on ``scene`` at ``preset`` on ``device`` (None: the CPU); write and
+    return the table.
 
     Returns:
         ``{"scene", "preset", "frames", "rows": [{"expert", "psnr", "ssim", "lpips", "train_seconds",
@@ -159,7 +162,7 @@ def compare(
         recipe = config_for(name, scene, preset)
         result, changed = reusable_run(recipe, run_dir)
         if result is None:
-            result = run_expert(recipe, run_dir, window, scenes, progress)
+            result = run_expert(recipe, run_dir, window, scenes, progress, device)
         else:
             skipped.append(name)
         rows.append({**_row(name, result, run_dir), "config_changes": changed})
@@ -189,6 +192,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--frames", type=frame_window, help="frame window START:STOP on video datasets (quick default 0:5)"
     )
+    add_device_argument(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -196,7 +200,9 @@ def main(args: argparse.Namespace) -> int:
     from moegs.train.reuse import describe_changes
 
     experts = [e.strip() for e in args.experts.split(",") if e.strip()]
-    table = compare(experts, args.scene, args.preset, args.out, args.frames, progress=not args.quiet)
+    table = compare(
+        experts, args.scene, args.preset, args.out, args.frames, progress=not args.quiet, device=args.device
+    )
     for row in table["rows"]:
         lpips = "n/a" if row["lpips"] is None or math.isnan(row["lpips"]) else f"{row['lpips']:.4f}"
         print(

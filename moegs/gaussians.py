@@ -79,10 +79,11 @@ class GaussianFrame:
 
     def check_finite(self, what: str = "GaussianFrame") -> None:
         """Raise ``FloatingPointError`` naming the first field holding NaN or Inf."""
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if value is not None and not torch.isfinite(value).all():
-                raise FloatingPointError(f"{what}.{f.name} contains NaN or Inf")
+        present = [(f.name, v) for f in fields(self) if (v := getattr(self, f.name)) is not None]
+        finite = torch.stack([torch.isfinite(v).all() for _, v in present]).tolist()  # one device sync
+        for (name, _), ok in zip(present, finite, strict=True):
+            if not ok:
+                raise FloatingPointError(f"{what}.{name} contains NaN or Inf")
 
     # -- properties -----------------------------------------------------------------------------
     def __len__(self) -> int:

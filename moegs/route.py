@@ -18,7 +18,14 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from moegs.cli_types import add_resume_arguments, non_negative_int, positive_int, scene_name, seed
+from moegs.cli_types import (
+    add_device_argument,
+    add_resume_arguments,
+    non_negative_int,
+    positive_int,
+    scene_name,
+    seed,
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -47,12 +54,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--gate-views", type=non_negative_int, default=4, help="test views drawn as gate figures (0: none)"
     )
     add_resume_arguments(p, "router")
+    add_device_argument(p, "train the experts and the router")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
-def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress: bool):
-    """Train (or reuse) each expert with its recipe; returns ``(experts, scene)``: the scene loaded as the
-    first expert's recipe loads it (experts on RGBA datasets must agree on the background)."""
+def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress: bool, device):
+    """Train (or reuse) each expert with its recipe on ``device``; returns ``(experts, scene)``: the experts
+    on ``device``, the scene loaded as the first expert's recipe loads it (experts on RGBA datasets must
+    agree on the background) and placed on ``device``."""
     from moegs.compare import preset_frames, run_expert, scene_kwargs
     from moegs.data import load_scene
     from moegs.recipes import config_for
@@ -79,7 +88,7 @@ def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress
         run_dir = out / recipe.expert
         result, changed = reusable_run(recipe, run_dir)
         if result is None:
-            run_expert(recipe, run_dir, frames, scenes, progress)
+            run_expert(recipe, run_dir, frames, scenes, progress, device)
         elif changed:
             print(
                 f"moegs route: reusing {run_dir}, a finished run of another config than the {preset} "
@@ -87,7 +96,8 @@ def _experts(names: list[str], scene_name: str, preset: str, out: Path, progress
                 file=sys.stderr,
             )
     scene = load_scene(scene_name, **scene_kwargs(recipes[0], frames))
-    return [load_trained(out / name, scene)[0] for name in names], scene
+    experts = [load_trained(out / name, scene, device=device)[0] for name in names]
+    return experts, scene.to(device)
 
 
 def composites_background(scene_name: str) -> bool:
@@ -143,7 +153,7 @@ def main(args: argparse.Namespace) -> int:
     if len(names) < 2 or len(set(names)) != len(names):
         raise ValueError(f"--experts needs at least two different experts to route between, got {names}")
     out = Path(args.out or Path("runs") / f"route_{args.scene.replace(':', '_')}_{args.preset}_s{args.seed}")
-    experts, scene = _experts(names, args.scene, args.preset, out, not args.quiet)
+    experts, scene = _experts(names, args.scene, args.preset, out, not args.quiet, args.device)
     config = router_config_for(args.preset, args.convention, scene=args.scene)
     config = replace(config, variant=args.router, seed=args.seed)
     if args.iterations is not None:

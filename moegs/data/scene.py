@@ -6,9 +6,10 @@ Loaders (``dnerf``, ``panoptic``, ``n3v``, ``technicolor``, ``hypernerf``, ``syn
 
 from __future__ import annotations
 
+import os
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import torch
@@ -61,6 +62,26 @@ class ImageCache:
         return len(self._items)
 
 
+DEVICE_IMAGE_SHARE = 0.4
+"""Share of a GPU's memory that a placed scene's images may hold (``Scene.to``); beyond it the least
+recently used are dropped and copied again from the host when needed. ``MOEGS_DEVICE_IMAGE_BYTES``
+sets the bytes instead. N3V's 19 cameras x 300 frames at 1352x1014 are 23 GB as 8-bit images."""
+
+
+def device_image_bytes(device: torch.device) -> int:
+    """Bytes of images a scene placed on ``device`` keeps there (see ``DEVICE_IMAGE_SHARE``)."""
+    override = os.environ.get("MOEGS_DEVICE_IMAGE_BYTES")
+    if override:
+        try:
+            return int(override)
+        except ValueError:
+            message = f"MOEGS_DEVICE_IMAGE_BYTES: expected a number of bytes, got {override!r}"
+            raise ValueError(message) from None
+    if device.type != "cuda":
+        return 1 << 30
+    return int(DEVICE_IMAGE_SHARE * torch.cuda.get_device_properties(device).total_memory)
+
+
 @dataclass
 class View:
     """A camera with its ground truth, loaded on demand.
@@ -84,10 +105,28 @@ class View:
     cache: ImageCache | None = field(default=None, repr=False)
     load_regions: Callable[[], dict[str, Tensor]] | None = None
 
+    def stored_image(self) -> Tensor:
+        """The image as loaded (uint8 or float32 ``[H, W, 3]``), through the scene's cache."""
+        return self.load_image() if self.cache is None else self.cache.get(self.key, self.load_image)
+
     def image(self) -> Tensor:
-        """``[H, W, 3]`` float32 in [0, 1]."""
-        image = self.load_image() if self.cache is None else self.cache.get(self.key, self.load_image)
+        """``[H, W, 3]`` float32 in [0, 1] (on the camera's device in a placed scene, ``Scene.to``)."""
+        image = self.stored_image()
         return image.to(torch.float32) / 255.0 if image.dtype == torch.uint8 else image
+
+    def to(self, device: torch.device) -> View:
+        """This view with its camera on ``device`` and its image, mask and regions copied there when read;
+        the image comes from this view's cache (decoded once) and is kept by the placed scene's cache."""
+        return replace(
+            self,
+            camera=self.camera.to(device),
+            load_image=lambda: self.stored_image().to(device, non_blocking=True),
+            load_mask=None if self.load_mask is None else lambda: self.load_mask().to(device),
+            load_regions=None
+            if self.load_regions is None
+            else lambda: {k: v.to(device) for k, v in self.load_regions().items()},
+            cache=None,
+        )
 
     def mask(self) -> Tensor | None:
         return None if self.load_mask is None else self.load_mask()
@@ -153,12 +192,31 @@ class Scene:
     stand_in: str = ""
     meta: dict = field(default_factory=dict)
     cache: ImageCache = field(default_factory=ImageCache, repr=False)
+    _placed: dict[torch.device, Scene] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not self.train:
             raise ValueError(f"scene {self.name!r} has no training views")
         for view in [*self.train, *self.test]:
             view.cache = self.cache
+
+    def to(self, device: torch.device | str) -> Scene:
+        """This scene for a run on ``device``: itself on the CPU; elsewhere a copy (made once per device)
+        whose cameras and background live there and whose images are copied there when first read and
+        kept in a cache of ``device_image_bytes(device)`` (8-bit images stay 8-bit). Initial points and
+        bounds stay on the CPU, where experts are built."""
+        device = torch.device(device)
+        if device.type == "cpu" and self.background.device.type == "cpu":
+            return self
+        if device not in self._placed:
+            self._placed[device] = replace(
+                self,
+                train=[v.to(device) for v in self.train],
+                test=[v.to(device) for v in self.test],
+                background=self.background.to(device),
+                cache=ImageCache(max_bytes=device_image_bytes(device)),
+            )
+        return self._placed[device]
 
     @property
     def times(self) -> Tensor:

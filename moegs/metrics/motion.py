@@ -59,8 +59,8 @@ class MotionCapture:
         key = camera.pose_key()
         sums = self._cameras.get(key)
         if sums is None:
-            plane = torch.zeros(g.shape[:2], dtype=torch.float64)
-            region = torch.zeros(g.shape[:2], dtype=torch.bool)
+            plane = torch.zeros(g.shape[:2], dtype=torch.float64, device="cpu")
+            region = torch.zeros(g.shape[:2], dtype=torch.bool, device="cpu")
             sums = _Sums(torch.zeros_like(g), plane, torch.zeros_like(g), plane.clone(), region)
             self._cameras[key] = sums
         sums.residual += d

@@ -45,7 +45,7 @@ def _check_size(x: Tensor, fn: str) -> None:
 
 def _gaussian_1d(device: torch.device, dtype: torch.dtype) -> Tensor:
     """Normalised 1-D Gaussian ``[WINDOW]``."""
-    x = torch.arange(WINDOW, dtype=torch.float64) - _HALF
+    x = torch.arange(WINDOW, dtype=torch.float64, device="cpu") - _HALF
     g = torch.exp(-(x**2) / (2.0 * SIGMA**2))
     return (g / g.sum()).to(device=device, dtype=dtype)
 

@@ -45,25 +45,25 @@ class _Composite(torch.autograd.Function):
         n, d = colors.shape
         g, tile, threads = num_groups, TILE_SIZE, torch.get_num_threads()
         ntiles = -(-width // tile) * -(-height // tile)
-        geo = torch.empty(n, 8, dtype=torch.float32)
-        box = torch.empty(n, 4, dtype=torch.int32)
-        grp = torch.empty(n, dtype=torch.int32)
-        col = torch.empty(n, d, dtype=torch.float32)
-        gstart = torch.empty(n + 1, dtype=torch.int64)
-        tile_off = torch.empty(ntiles + 1, dtype=torch.int64)
+        geo = torch.empty(n, 8, dtype=torch.float32, device="cpu")
+        box = torch.empty(n, 4, dtype=torch.int32, device="cpu")
+        grp = torch.empty(n, dtype=torch.int32, device="cpu")
+        col = torch.empty(n, d, dtype=torch.float32, device="cpu")
+        gstart = torch.empty(n + 1, dtype=torch.int64, device="cpu")
+        tile_off = torch.empty(ntiles + 1, dtype=torch.int64, device="cpu")
         total = lib.moegs_prepare(
             n, d, g, width, height, tile, threads, _ptr(order), _ptr(means2d), _ptr(conics),
             _ptr(opacities), _ptr(colors), _ptr(radii), _ptr(groups),
             _ptr(geo), _ptr(box), _ptr(grp), _ptr(col), gstart.data_ptr(), tile_off.data_ptr(),
         )  # fmt: skip
         _check(total, "prepare")
-        lists = torch.empty(total, dtype=torch.int32)
-        pairpos = torch.empty(total, dtype=torch.int64)
-        image = torch.empty(g, height, width, d, dtype=torch.float32)
-        alpha = torch.empty(g, height, width, dtype=torch.float32)
-        contrib = torch.empty(n, dtype=torch.float32)
-        tfinal = torch.empty(g, height, width, dtype=torch.float64)
-        last = torch.empty(g, height, width, dtype=torch.int32)
+        lists = torch.empty(total, dtype=torch.int32, device="cpu")
+        pairpos = torch.empty(total, dtype=torch.int64, device="cpu")
+        image = torch.empty(g, height, width, d, dtype=torch.float32, device="cpu")
+        alpha = torch.empty(g, height, width, dtype=torch.float32, device="cpu")
+        contrib = torch.empty(n, dtype=torch.float32, device="cpu")
+        tfinal = torch.empty(g, height, width, dtype=torch.float64, device="cpu")
+        last = torch.empty(g, height, width, dtype=torch.int32, device="cpu")
         code = lib.moegs_forward(
             n, d, g, width, height, tile, threads, _ptr(order), _ptr(geo), _ptr(box), _ptr(grp),
             _ptr(col), gstart.data_ptr(), tile_off.data_ptr(), total, _ptr(lists), _ptr(pairpos),
@@ -83,10 +83,10 @@ class _Composite(torch.autograd.Function):
         n, d, g, width, height, tile, total = ctx.dims
         grad_image = grad_image.to(torch.float32).contiguous()
         grad_alpha = grad_alpha.to(torch.float32).contiguous()
-        gm = torch.empty(n, 2, dtype=torch.float32)
-        gc = torch.empty(n, 3, dtype=torch.float32)
-        go = torch.empty(n, dtype=torch.float32)
-        gcol = torch.empty(n, d, dtype=torch.float32)
+        gm = torch.empty(n, 2, dtype=torch.float32, device="cpu")
+        gc = torch.empty(n, 3, dtype=torch.float32, device="cpu")
+        go = torch.empty(n, dtype=torch.float32, device="cpu")
+        gcol = torch.empty(n, d, dtype=torch.float32, device="cpu")
         code = lib.moegs_backward(
             n, d, g, width, height, tile, torch.get_num_threads(), _ptr(order), _ptr(geo), _ptr(box),
             _ptr(grp), _ptr(col), gstart.data_ptr(), tile_off.data_ptr(), total, _ptr(lists),
@@ -190,7 +190,9 @@ def _camera_record(camera: Camera, eps2d: float) -> Tensor:
     (4) and eps2d, each the float32 value the reference's operations use."""
     w2c = camera.world_to_camera.to(torch.float32)
     scalars = [camera.fx, camera.fy, camera.cx, camera.cy, *_reference._jacobian_limits(camera), eps2d]
-    return torch.cat([w2c[:3, :3].reshape(9), w2c[:3, 3], torch.tensor(scalars, dtype=torch.float32)])
+    return torch.cat(
+        [w2c[:3, :3].reshape(9), w2c[:3, 3], torch.tensor(scalars, dtype=torch.float32, device="cpu")]
+    )
 
 
 class _Project(torch.autograd.Function):
@@ -200,11 +202,11 @@ class _Project(torch.autograd.Function):
     def forward(ctx, means, covars, opacities, cam, width, height, near, far, antialiased):
         lib = library()
         n = means.shape[0]
-        means2d = torch.empty(n, 2, dtype=torch.float32)
-        conics = torch.empty(n, 3, dtype=torch.float32)
-        opac_out = torch.empty(n, dtype=torch.float32)
-        depths = torch.empty(n, dtype=torch.float32)
-        radii = torch.empty(n, dtype=torch.int32)
+        means2d = torch.empty(n, 2, dtype=torch.float32, device="cpu")
+        conics = torch.empty(n, 3, dtype=torch.float32, device="cpu")
+        opac_out = torch.empty(n, dtype=torch.float32, device="cpu")
+        depths = torch.empty(n, dtype=torch.float32, device="cpu")
+        radii = torch.empty(n, dtype=torch.int32, device="cpu")
         code = lib.moegs_project_forward(
             n, torch.get_num_threads(), _ptr(means), _ptr(covars), _ptr(opacities), cam.data_ptr(),
             width, height, near, far, int(antialiased),
@@ -226,12 +228,12 @@ class _Project(torch.autograd.Function):
 
         # kept in locals: C reads them through raw pointers
         grads_out = [
-            torch.zeros(shape) if g is None else g.to(torch.float32).contiguous()
+            torch.zeros(shape, device="cpu") if g is None else g.to(torch.float32).contiguous()
             for g, shape in ((g_means2d, (n, 2)), (g_conics, (n, 3)), (g_opac_out, (n,)), (g_depths, (n,)))
         ]
-        g_means = torch.empty(n, 3, dtype=torch.float32)
-        g_covars = torch.empty(n, 3, 3, dtype=torch.float32)
-        g_opac = torch.empty(n, dtype=torch.float32)
+        g_means = torch.empty(n, 3, dtype=torch.float32, device="cpu")
+        g_covars = torch.empty(n, 3, 3, dtype=torch.float32, device="cpu")
+        g_opac = torch.empty(n, dtype=torch.float32, device="cpu")
         code = lib.moegs_project_backward(
             n, torch.get_num_threads(), _ptr(means), _ptr(covars), _ptr(opacities), cam.data_ptr(),
             near, far, int(antialiased), *(_ptr(g) for g in grads_out),
@@ -280,7 +282,7 @@ class _Covariance(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, quats, scales):
-        covars = torch.empty(quats.shape[0], 3, 3, dtype=torch.float32)
+        covars = torch.empty(quats.shape[0], 3, 3, dtype=torch.float32, device="cpu")
         code = library().moegs_covariance_forward(
             quats.shape[0], torch.get_num_threads(), _ptr(quats), _ptr(scales), _ptr(covars)
         )

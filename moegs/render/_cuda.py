@@ -76,14 +76,23 @@ def check(device: torch.device, dtype: torch.dtype) -> None:
 MIN_GROUP_WIDTH = 32
 
 
-def _padded_layout(groups: Tensor, num_groups: int) -> tuple[Tensor, int]:
+def _padded_layout(
+    groups: Tensor, num_groups: int, sizes: tuple[int, ...] | None = None
+) -> tuple[Tensor, int]:
     """Where each Gaussian goes when the groups are padded to one batch ``[G, M]``.
 
     Returns ``slot [N]`` (flat index into ``G * M``, stable within a group) and ``M``: the largest group,
-    at least ``MIN_GROUP_WIDTH`` when there are several groups.
+    at least ``MIN_GROUP_WIDTH`` when there are several groups. ``sizes``, the size of each group when
+    ``groups`` is sorted (``moegs.gaussians.cat``), spares reading the counts back from the device.
     """
+    minimum = MIN_GROUP_WIDTH if num_groups > 1 else 1
+    if sizes is not None:
+        width = max(max(sizes, default=0), minimum)
+        starts = torch.tensor([sum(sizes[:g]) for g in range(num_groups)], device=groups.device)
+        index = torch.arange(len(groups), device=groups.device)
+        return groups * width + index - starts[groups], width
     counts = torch.bincount(groups, minlength=num_groups)
-    width = max(int(counts.max()), MIN_GROUP_WIDTH if num_groups > 1 else 1)
+    width = max(int(counts.max()), minimum)
     order = torch.argsort(groups, stable=True)
     starts = torch.cumsum(counts, 0) - counts
     rank = torch.empty_like(groups)
@@ -109,6 +118,7 @@ def render(
     eps2d: float,
     antialiased: bool,
     with_contrib: bool,
+    group_sizes: tuple[int, ...] | None = None,  # the size of each group when ``groups`` is sorted
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor | None]:
     """Rasterize with ONE gsplat call: the groups become its batch dimension.
 
@@ -123,9 +133,11 @@ def render(
 
     check(means.device, means.dtype)
     n, d = features.shape
-    groups = torch.zeros(n, dtype=torch.long, device=means.device) if groups is None else groups
-    slot, width = _padded_layout(groups, num_groups)
-    behind = torch.linalg.inv(camera.world_to_camera.to(means)) @ means.new_tensor([0.0, 0.0, -1.0, 1.0])
+    if groups is None:
+        groups, group_sizes = torch.zeros(n, dtype=torch.long, device=means.device), (n,)
+    slot, width = _padded_layout(groups, num_groups, group_sizes)
+    w2c = camera.world_to_camera.to(means)
+    behind = w2c[:3, :3].T @ (means.new_tensor([0.0, 0.0, -1.0]) - w2c[:3, 3])  # camera point (0, 0, -1)
 
     def pad(values: Tensor, fill: Tensor) -> Tensor:
         return _pad(values, slot, num_groups, width, fill.to(values))
@@ -135,13 +147,13 @@ def render(
     keep_graph = torch.is_grad_enabled() and any(t.requires_grad for t in inputs)
     with torch.set_grad_enabled(keep_graph or with_contrib):
         image, alpha, meta = gsplat.rasterization(
-            pad(means, behind[:3]), None, None, pad(opacities, torch.zeros(())),
-            pad(torch.cat([features, ones], dim=1), torch.zeros(())),
-            camera.world_to_camera.to(means).expand(num_groups, 1, 4, 4),
+            pad(means, behind), None, None, pad(opacities, means.new_zeros(())),
+            pad(torch.cat([features, ones], dim=1), means.new_zeros(())),
+            w2c.expand(num_groups, 1, 4, 4),
             camera.K.to(means).expand(num_groups, 1, 3, 3), camera.width, camera.height,
             near_plane=camera.near, far_plane=camera.far, eps2d=eps2d, sh_degree=None, packed=False,
             render_mode="RGB", rasterize_mode="antialiased" if antialiased else "classic",
-            covars=pad(covars, torch.eye(3)),
+            covars=pad(covars, torch.eye(3, device=means.device)),
         )  # fmt: skip
         contrib = None
         if with_contrib:

@@ -106,6 +106,7 @@ def rasterize_multi(
         _Options(sh_degree, antialiased, eps2d, return_depth, return_stats, backend),
         groups=expert_id,
         num_groups=len(frames),
+        group_sizes=tuple(len(f) for f in frames),
         backgrounds=_backgrounds(backgrounds, len(frames), joint.num_channels, joint.means),
         extra=extra,
     )

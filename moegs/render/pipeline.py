@@ -4,7 +4,10 @@ See the package docstring (``moegs.render``) for the backends."""
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from functools import cache, partial
 from typing import Any
@@ -28,6 +31,20 @@ from moegs.render.projection import (
 
 BACKENDS = ("auto", "torch", "cpu", "cuda")
 _WARNED: set[str] = set()
+_VALUE_CHECKS = contextvars.ContextVar("moegs_render_value_checks", default=True)
+
+
+@contextlib.contextmanager
+def value_checks(enabled: bool) -> Iterator[None]:
+    """Inside ``with value_checks(False)`` renders skip the checks that read tensor values (finite
+    Gaussians and background, opacities in [0, 1], non-zero quaternions): on a GPU each is a wait for the
+    device. The training loop skips them between its own finite checks; shapes and devices are always
+    checked."""
+    token = _VALUE_CHECKS.set(enabled)
+    try:
+        yield
+    finally:
+        _VALUE_CHECKS.reset(token)
 
 
 @dataclass
@@ -89,8 +106,9 @@ def _check_frame(frame: GaussianFrame, camera: Camera, what: str) -> None:
         raise ValueError(
             f"{what} is on {frame.device} but the camera is on {camera.device}; move one with .to(device)"
         )
-    frame.check_values(what)
-    frame.check_finite(what)
+    if _VALUE_CHECKS.get():
+        frame.check_values(what)
+        frame.check_finite(what)
 
 
 def _check_tensor(name: str, value: Tensor, shape: tuple[int, ...], like: Tensor) -> Tensor:
@@ -101,7 +119,7 @@ def _check_tensor(name: str, value: Tensor, shape: tuple[int, ...], like: Tensor
         raise ValueError(f"{name} must have shape {list(shape)}, got {list(value.shape)}")
     if value.device != like.device:
         raise ValueError(f"{name} is on {value.device} but the Gaussians are on {like.device}")
-    if not torch.isfinite(value).all():
+    if _VALUE_CHECKS.get() and not torch.isfinite(value).all():
         raise FloatingPointError(f"{name} contains NaN or Inf")
     return value.to(like.dtype)
 
@@ -219,6 +237,7 @@ def _render(
     *,
     groups: Tensor | None = None,  # [N] int64 in [0, num_groups)
     num_groups: int = 1,
+    group_sizes: tuple[int, ...] | None = None,  # when ``groups`` is sorted: the size of each group
     backgrounds: Tensor | None = None,  # [G, C], checked
     extra: Tensor | None = None,  # [N, E], checked
 ) -> _Rendered:
@@ -232,7 +251,10 @@ def _render(
     if eps2d is None:
         eps2d = DILATION_ANTIALIASED if options.antialiased else BLUR_3DGS
     covariance = _cpu_kernel()[0].covariance_3d if backend == "cpu" else covariance_3d
-    image, alpha, radii, means2d, contrib = _rasterizer(backend)(
+    rasterizer = _rasterizer(backend)
+    if backend == "cuda":
+        rasterizer = partial(rasterizer, group_sizes=group_sizes)
+    image, alpha, radii, means2d, contrib = rasterizer(
         frame.means,
         covariance(frame.quats, frame.scales),
         frame.opacities,

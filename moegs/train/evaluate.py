@@ -49,7 +49,7 @@ def eval_views(views: list[View], max_views: int | None) -> list[View]:
         return list(views)
     if max_views < 1:
         raise ValueError(f"max_views must be >= 1, got {max_views}")
-    index = torch.linspace(0, len(views) - 1, max_views).round().long().tolist()
+    index = torch.linspace(0, len(views) - 1, max_views, device="cpu").round().long().tolist()
     return [views[i] for i in index]
 
 

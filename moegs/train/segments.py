@@ -16,6 +16,7 @@ from typing import Any
 import torch
 
 from moegs.data.scene import Scene
+from moegs.device import resolve_device
 from moegs.experts.stg import STGConfig, STGExpert, STGSegments, segment_bounds, segment_scene
 from moegs.io import read_json, write_json
 from moegs.train.checkpoint import load_expert
@@ -37,11 +38,12 @@ def train_segments(
     config: STGConfig,
     out_dir: str | Path | None = None,
     recipe: dict[str, Any] | None = None,
+    device: torch.device | str | None = None,
     **kwargs: Any,
 ) -> tuple[STGSegments, dict[str, Any]]:
     """Train one ``STGExpert`` per segment of ``scene`` (``scene_segments``) into ``out_dir/segment_<k>``
-    (an interrupted call resumes); ``kwargs`` go to ``moegs.train.loop.train``. A segment that stops early
-    (``stop_after``) ends the call there.
+    (an interrupted call resumes) on ``device`` (None: the CPU); ``kwargs`` go to
+    ``moegs.train.loop.train``. A segment that stops early (``stop_after``) ends the call there.
 
     Returns:
         the wrapper (eval mode) and the whole run's result: the loop's keys summed or averaged over the
@@ -50,15 +52,16 @@ def train_segments(
         segment's own result).
     """
     bounds = scene_segments(scene, config)
+    device = resolve_device(device or "cpu")
     out = Path(out_dir) if out_dir is not None else None
     if out is not None:
-        write_run_config(out, STGExpert.name, scene, config, config.train, recipe)
+        write_run_config(out, STGExpert.name, scene, config, config.train, recipe, device)
         write_json(out / SEGMENTS_NAME, {"expert": STGExpert.name, "bounds": [list(b) for b in bounds]})
     models, results = [], []
     for k, (start, stop) in enumerate(bounds):
         part = segment_scene(scene, start, stop)
         torch.manual_seed(config.train.seed)  # network initialisation independent of what ran before
-        model = STGExpert.from_scene(part, config)
+        model = STGExpert.from_scene(part, config).to(device)
         run_dir = out / f"segment_{k}" if out is not None else None
         results.append(train(model, part, out_dir=run_dir, recipe=recipe, **kwargs))
         models.append(model)
@@ -76,6 +79,7 @@ def _whole_run(
 ) -> dict[str, Any]:
     """The loop's result keys for the whole segmented run of ``planned`` segments (see ``train_segments``)."""
     completed = len(results) == planned and all(r["completed"] for r in results)
+    scene = scene.to(next(segments.parameters()).device)
     test_views = eval_views(scene.test, config.train.max_eval_views)
     test = None
     if completed and test_views:
@@ -106,11 +110,12 @@ def _whole_run(
 
 
 def load_segments(
-    out_dir: str | Path, scene: Scene, expect: str | None = None
+    out_dir: str | Path, scene: Scene, expect: str | None = None, device: torch.device | str | None = None
 ) -> tuple[STGSegments, dict[str, Any]]:
     """Rebuild the trained ``STGSegments`` of a segmented run folder for ``scene``: each segment's model on
-    its window of the scene. Refuses unless ``expect`` (if given) and ``segments.json``'s ``expert`` name
-    STG. Returns the wrapper (eval mode) and ``{"segments": [checkpoint state]}``."""
+    its window of the scene, on ``device`` (None: the CPU). Refuses unless ``expect`` (if given) and
+    ``segments.json``'s ``expert`` name STG. Returns the wrapper (eval mode) and ``{"segments":
+    [checkpoint state]}``."""
     out = Path(out_dir)
     record = read_json(out / SEGMENTS_NAME, "segmented run record")
     if record.get("expert") != STGExpert.name:
@@ -126,7 +131,7 @@ def load_segments(
     models, states = [], []
     for k, (start, stop) in enumerate(bounds):
         model, state = load_expert(
-            out / f"segment_{k}", segment_scene(scene, start, stop), expect=STGExpert.name
+            out / f"segment_{k}", segment_scene(scene, start, stop), expect=STGExpert.name, device=device
         )
         models.append(model)
         states.append(state)

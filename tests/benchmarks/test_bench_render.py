@@ -142,14 +142,9 @@ def test_gsplat_torch_reference(benchmark, n, res, monkeypatch):
     applies."""
     from helpers import gsplat_reference
 
-    from moegs.render import _cuda
-
     if (need := torch_memory_mb(n, res, True)) > TORCH_BUDGET_MB:
         pytest.skip(f"gsplat's reference would need ~{need:.0f} MB > {TORCH_BUDGET_MB:.0f} MB")
-    gsplat_reference.install(monkeypatch)
-    check = _cuda.check
-    monkeypatch.setattr(_cuda, "check", lambda device, dtype: check(torch.device("cuda"), dtype))
-    monkeypatch.setattr(_cuda, "is_installed", lambda: True)
+    gsplat_reference.install_cpu_glue(monkeypatch)
     render, frame = case_renderer(n=n, res=res, backend="cuda", backward=True)
     benchmark.extra_info.update(n=n, res=res, backend="gsplat-torch-reference", backward=True)
     benchmark.pedantic(run_once, args=(render, frame, True), rounds=ROUNDS, warmup_rounds=WARMUP)

@@ -34,7 +34,7 @@ def _train_steps(expert: str) -> float:
     run = TrainingRun(model, scene, recipe.config.train, None)
     torch.manual_seed(recipe.config.train.seed)
     model.train()
-    return sum(run.iteration(step) for step in range(1, STEPS + 1)) / STEPS
+    return float(sum(run.iteration(step) for step in range(1, STEPS + 1))) / STEPS
 
 
 @pytest.mark.realdata

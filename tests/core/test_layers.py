@@ -38,7 +38,7 @@ def test_the_check_sees_nested_imports(tmp_path):
 
 LAYERS = (
     ("kernels", "atomic"),
-    ("camera", "gaussians", "fields", "errors", "paths", "threads"),
+    ("camera", "gaussians", "fields", "errors", "paths", "threads", "device"),
     ("render", "data", "metrics", "io"),
     (
         "train.config",

@@ -156,3 +156,15 @@ def install(monkeypatch: pytest.MonkeyPatch) -> types.ModuleType:
 
     monkeypatch.setattr(gsplat, "rasterization", rasterization)
     return gsplat
+
+
+def install_cpu_glue(monkeypatch: pytest.MonkeyPatch) -> types.ModuleType:
+    """:func:`install`, and ``moegs.render._cuda`` accepting CPU tensors: ``backend="cuda"`` then runs our
+    CUDA glue with gsplat's torch kernels on the CPU (the CUDA code path of rendering and training)."""
+    from moegs.render import _cuda
+
+    module = install(monkeypatch)
+    check = _cuda.check
+    monkeypatch.setattr(_cuda, "check", lambda device, dtype: check(torch.device("cuda"), dtype))
+    monkeypatch.setattr(_cuda, "is_installed", lambda: True)
+    return module

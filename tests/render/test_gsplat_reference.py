@@ -49,11 +49,7 @@ def glue(request, monkeypatch) -> Glue:
         import gsplat
 
         return Glue(gsplat, torch.device("cuda"))
-    module = gsplat_reference.install(monkeypatch)
-    check = _cuda.check
-    monkeypatch.setattr(_cuda, "check", lambda device, dtype: check(torch.device("cuda"), dtype))
-    monkeypatch.setattr(_cuda, "is_installed", lambda: True)
-    return Glue(module, torch.device("cpu"))
+    return Glue(gsplat_reference.install_cpu_glue(monkeypatch), torch.device("cpu"))
 
 
 def _camera(width: int = 40, height: int = 30) -> Camera:
