@@ -195,7 +195,10 @@ class _AlexLPIPS(nn.Module):
 
 @lru_cache(maxsize=8)
 def _network(folder: str, device: torch.device, dtype: torch.dtype) -> _AlexLPIPS:
-    return _AlexLPIPS(folder).to(device=device, dtype=dtype)
+    """The network read on the host, then moved to ``device``."""
+    with torch.device("cpu"):
+        network = _AlexLPIPS(folder)
+    return network.to(device=device, dtype=dtype)
 
 
 def lpips(

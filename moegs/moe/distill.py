@@ -8,8 +8,8 @@ the one training loop) replaces its photometric loss by::
 with ``L`` = the student's own L1 + D-SSIM mix, ``G'_k`` the teacher's gate of expert ``k`` and ``I_MoE``
 the teacher's image ("Distilled (Ours)"). ``weighted=False`` drops the gates: ``lambda L(I_Ek, I_GT) +
 (1 - lambda) L(I_Ek, I_MoE)`` ("w/o Weight", paper Table XV). The paper gives no lambda (the authors'
-code has no distillation); 0.5 is our default. Teacher outputs are rendered once per training view and
-kept in memory.
+code has no distillation); 0.5 is our default. Teacher outputs are rendered on first use and kept while a
+memory budget holds them (``TeacherCache``).
 """
 
 from __future__ import annotations
@@ -22,11 +22,15 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from moegs.data.scene import Scene, View
+from moegs.data.scene import ImageCache, Scene, View, tensor_bytes
 from moegs.experts.base import Expert
 from moegs.io.config import Presets
 from moegs.moe.model import MoEGS
 from moegs.train.losses import photometric
+
+TEACHER_CACHE_BYTES = 4 << 30
+"""Default memory for the teacher's outputs (4 GiB: every view of the quick presets; at full resolution a
+view takes 16 bytes a pixel, 22 MB on N3V, so about 190 of N3V's 5700 training views)."""
 
 
 @dataclass
@@ -65,18 +69,28 @@ def kd_loss(
 
 
 class TeacherCache:
-    """The teacher's image and the student's gate per training view, rendered on first use."""
+    """The teacher's image and the student's gate per training view, rendered on first use and kept while
+    ``max_bytes`` holds them (LRU, 16 bytes a pixel); a view that does not fit is rendered again each time
+    it is needed. The teacher is deterministic on the CPU, so the budget changes no number there.
 
-    def __init__(self, teacher: MoEGS, index: int, background: Tensor | None) -> None:
+    Entries stay on the teacher's device: on a GPU, a kept view costs nothing, while a view kept on the
+    host would cost a copy of its 16 bytes a pixel per use, a sizeable fraction of rendering it again (one
+    forward pass of the teacher, without gradients); so the budget is GPU memory, beside the student's."""
+
+    def __init__(
+        self, teacher: MoEGS, index: int, background: Tensor | None, max_bytes: int = TEACHER_CACHE_BYTES
+    ) -> None:
         self.teacher, self.index, self.background = teacher.eval(), index, background
-        self.outputs: dict[str, tuple[Tensor, Tensor]] = {}
+        self.outputs = ImageCache(max_bytes=max_bytes, nbytes=lambda pair: sum(map(tensor_bytes, pair)))
+
+    def render(self, view: View) -> tuple[Tensor, Tensor]:
+        """``(image [H, W, 3], gate [H, W])`` of the teacher for ``view``."""
+        with torch.no_grad():
+            out = self.teacher.render(view.camera, self.background)
+        return out.image, out.gates[self.index].clone()  # a copy: the kept gate alone, not all K
 
     def __call__(self, view: View) -> tuple[Tensor, Tensor]:
-        if view.key not in self.outputs:
-            with torch.no_grad():
-                out = self.teacher.render(view.camera, self.background)
-            self.outputs[view.key] = (out.image, out.gates[self.index])
-        return self.outputs[view.key]
+        return self.outputs.get(view.key, lambda: self.render(view))
 
 
 def student_index(student: Expert, teacher: MoEGS) -> int:
@@ -87,23 +101,8 @@ def student_index(student: Expert, teacher: MoEGS) -> int:
     return names.index(student.name)
 
 
-def distill(
-    student: Expert,
-    teacher: MoEGS,
-    scene: Scene,
-    config: DistillConfig | None = None,
-    out_dir: str | Path | None = None,
-    progress: bool = False,
-) -> dict[str, Any]:
-    """Train ``student`` (freshly built with ``from_scene``) under the teacher's supervision.
-
-    Returns the training loop's result (``moegs.train.loop.train``); ``out_dir`` holds a checkpoint that
-    ``moegs.train.checkpoint.load_expert`` reads.
-    """
-    from moegs.train.loop import train
-
-    config = config or DistillConfig()
-    teacher_of = TeacherCache(teacher, student_index(student, teacher), scene.background)
+def kd_view_loss(teacher_of: TeacherCache, config: DistillConfig):
+    """The training loop's per-view loss (``moegs.train.loop.ViewLoss``): ``kd_loss`` against the teacher."""
 
     def loss(view: View, rgb: Tensor, target: Tensor, lambda_dssim: float) -> Tensor:
         moe_image, gate = teacher_of(view)
@@ -111,6 +110,32 @@ def distill(
             rgb, target, moe_image, gate if config.weighted else None, config.kd_lambda, lambda_dssim
         )
 
+    return loss
+
+
+def distill(
+    student: Expert,
+    teacher: MoEGS,
+    scene: Scene,
+    config: DistillConfig | None = None,
+    out_dir: str | Path | None = None,
+    progress: bool = False,
+    teacher_cache_bytes: int = TEACHER_CACHE_BYTES,
+) -> dict[str, Any]:
+    """Train ``student`` (freshly built with ``from_scene``, moved here to the teacher's device) under the
+    teacher's supervision; ``teacher_cache_bytes`` bounds the teacher outputs kept (``TeacherCache``).
+
+    Returns the training loop's result (``moegs.train.loop.train``); ``out_dir`` holds a checkpoint that
+    ``moegs.train.checkpoint.load_expert`` reads.
+    """
+    from moegs.train.loop import train
+
+    config = config or DistillConfig()
+    index = student_index(student, teacher)
+    scene = scene.to(teacher.device)
+    student.to(teacher.device)
+    teacher_of = TeacherCache(teacher, index, scene.background, max_bytes=teacher_cache_bytes)
+    loss = kd_view_loss(teacher_of, config)
     train_config = student.config.train
     overrides: dict[str, Any] = {"seed": config.seed}
     if config.iterations is not None:

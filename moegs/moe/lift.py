@@ -33,25 +33,30 @@ from moegs.render.projection import rgb_to_sh0
 def compute_responsibilities(
     model: MoEGS, views: Sequence[View], background, progress: bool = False
 ) -> list[Tensor]:
-    """``R`` per expert (``[N_k]`` each, in [0, 1]) over ``views``, kept as ``model.responsibilities``."""
+    """``R`` per expert (``[N_k]`` each, in [0, 1], on the model's device) over ``views``, kept as
+    ``model.responsibilities``."""
     model.eval()
-    num = [torch.zeros(e.num_gaussians) for e in model.experts]
-    den = [torch.zeros(e.num_gaussians) for e in model.experts]
+    device = model.device
+    background = None if background is None else background.to(device)
+    num = [torch.zeros(e.num_gaussians, device=device) for e in model.experts]
+    den = [torch.zeros(e.num_gaussians, device=device) for e in model.experts]
     for view in tqdm(views, disable=not progress, desc="lifting gates"):
-        camera = view.camera
+        camera = view.camera.to(device)
         with torch.no_grad():
             gates = model.render(camera, background).gates  # [K, H, W]
         inputs = expert_inputs(model.experts, camera, background)
-        probes = [torch.zeros(len(inp.frame), 2, requires_grad=True) for inp in inputs]
-        splat = splat_experts(inputs, camera, extras=probes, single_pass=model.config.single_pass)
+        probes = [torch.zeros(len(inp.frame), 2, device=device, requires_grad=True) for inp in inputs]
+        splat = splat_experts(
+            inputs, camera, extras=probes, single_pass=model.config.single_pass, backend=model.config.backend
+        )
         maps = splat.extras  # [K, H, W, 2]
         objective = (gates * maps[..., 0]).sum() + maps[..., 1].sum()
         grads = torch.autograd.grad(objective, probes)
         for k, (expert, g) in enumerate(zip(model.experts, grads, strict=True)):
             rows = expert.frame_rows(camera.time)
-            rows = torch.arange(expert.num_gaussians) if rows is None else rows.cpu()
-            num[k].index_add_(0, rows, g[:, 0].cpu())
-            den[k].index_add_(0, rows, g[:, 1].cpu())
+            rows = torch.arange(expert.num_gaussians, device=device) if rows is None else rows
+            num[k].index_add_(0, rows, g[:, 0])
+            den[k].index_add_(0, rows, g[:, 1])
     resp = [
         torch.where(d > 0, n / d.clamp_min(1e-20), torch.zeros_like(n)).clamp(0, 1)
         for n, d in zip(num, den, strict=True)
@@ -86,7 +91,7 @@ def lift(model: MoEGS, t: float) -> GaussianFrame:
     for expert, resp in zip(model.experts, model.responsibilities, strict=True):
         frame = expert.frame(t)
         rows = expert.frame_rows(t)
-        r = (resp if rows is None else resp[rows.cpu()]).to(frame.opacities)
+        r = (resp if rows is None else resp[rows]).to(frame.opacities)
         frames.append(replace(frame, opacities=frame.opacities * r))
     if len({(f.sh is None, None if f.sh is None else f.sh.shape[1]) for f in frames}) > 1:
         bases = max(1 if f.sh is None else f.sh.shape[1] for f in frames)

@@ -18,14 +18,15 @@ from moegs.data.scene import ImageCache, Scene
 from moegs.experts.base import Expert, SplatInputs
 from moegs.io import from_dict, load_checkpoint, to_dict
 from moegs.moe.config import RouterConfig
-from moegs.moe.routers import MoERender, build_router
+from moegs.moe.routers import MoERender, build_router, experts_device
 
 ROUTER_CHECKPOINT = "router.safetensors"
 FORMAT = 1
 
 
 class MoEGS(nn.Module):
-    """Experts (frozen, always in eval mode) and the router that blends them.
+    """Experts (frozen, always in eval mode) and the router that blends them, on the experts' device (move
+    the experts with ``expert.to(device)`` before building it).
 
     Attributes:
         experts: ``K`` trained experts; no parameter of theirs requires grad.
@@ -50,6 +51,11 @@ class MoEGS(nn.Module):
         super().train(mode)
         self.experts.eval()
         return self
+
+    @property
+    def device(self) -> torch.device:
+        """The experts' device, where the router and every tensor of a render live."""
+        return experts_device(self.experts)
 
     @property
     def num_experts(self) -> int:
@@ -136,7 +142,8 @@ def load_moe(path: str | Path, experts: Sequence[Expert], scene: Scene | None = 
     _check_experts(state, experts, Path(path))
     model = MoEGS(experts, from_dict(RouterConfig, state["config"]))
     model.router.load_state_dict(state["router"])
-    model.responsibilities = state.get("responsibilities")
+    resp = state.get("responsibilities")
+    model.responsibilities = None if resp is None else [r.to(model.device) for r in resp]
     return model.eval()
 
 
@@ -169,11 +176,17 @@ def region_shares(gates: Tensor, mask: Tensor) -> dict[str, list[float]]:
 
 
 @torch.no_grad()
-def winner_shares(gates: Tensor, margin: float = 1e-3) -> list[float]:
+def winner_share(gates: Tensor, margin: float = 1e-3) -> Tensor:
     """Fraction of pixels where each expert's gate is the largest and above the uniform ``1/K`` by
-    ``margin`` (pixels no expert covers get equal logits and count for nobody), ``K`` floats."""
+    ``margin`` (pixels no expert covers get equal logits and count for nobody), ``[K]`` on the gates'
+    device."""
     k = gates.shape[0]
     top, winner = gates.max(0)
     decided = top > 1.0 / k + margin
     counts = torch.bincount(winner[decided].flatten(), minlength=k)
-    return counts.div(gates[0].numel()).tolist()
+    return counts.div(gates[0].numel())
+
+
+def winner_shares(gates: Tensor, margin: float = 1e-3) -> list[float]:
+    """:func:`winner_share` as ``K`` floats."""
+    return winner_share(gates, margin).tolist()

@@ -48,13 +48,16 @@ def _weights(model: MoEGS) -> GaussianWeights:
 
 
 def gate_importance(model: MoEGS, views: Sequence[View], background, progress: bool = False) -> list[Tensor]:
-    """``E`` per expert, ``[N_k]`` each (see module docstring); vapr and volume routers."""
+    """``E`` per expert, ``[N_k]`` each on the model's device (see module docstring); vapr and volume
+    routers."""
     weights = _weights(model)
     model.eval()
+    device = model.device
+    background = None if background is None else background.to(device)
     k_all = len(weights.mix)
-    totals = [torch.zeros(p.shape[0]) for p in weights.mix]
+    totals = [p.new_zeros(p.shape[0]) for p in weights.mix]
     for view in tqdm(views, disable=not progress, desc="gate importance"):
-        gates = model.render(view.camera, background).gates
+        gates = model.render(view.camera.to(device), background).gates
         for k in range(k_all):
             grads = torch.autograd.grad(
                 gates[k].sum(),

@@ -47,6 +47,11 @@ class MoERender:
     passes: int
 
 
+def experts_device(experts: Sequence[Expert]) -> torch.device:
+    """Where the experts' Gaussians are: the device of the MoE model and its router."""
+    return next(iter(experts[0].splats.values())).device
+
+
 class GaussianWeights(nn.Module):
     """Per-Gaussian routing parameters of each expert: ``mix[k] [N_k, M]`` (base weights, the fast
     learning rate) and ``time[k] [N_k, 1]`` (w_time, the slow one).
@@ -56,10 +61,11 @@ class GaussianWeights(nn.Module):
 
     def __init__(self, experts: Sequence[Expert], init_mix: Sequence[float], init_time: float) -> None:
         super().__init__()
-        mix = torch.tensor([float(v) for v in init_mix])
+        device = experts_device(experts)
+        mix = torch.tensor([float(v) for v in init_mix], device=device)
         self.mix = nn.ParameterList([nn.Parameter(mix.repeat(e.num_gaussians, 1)) for e in experts])
         self.time = nn.ParameterList(
-            [nn.Parameter(torch.full((e.num_gaussians, 1), init_time)) for e in experts]
+            [nn.Parameter(torch.full((e.num_gaussians, 1), init_time, device=device)) for e in experts]
         )
 
     def rows(self, k: int, expert: Expert, t: float) -> tuple[Tensor, Tensor]:
@@ -83,16 +89,18 @@ class GaussianWeights(nn.Module):
 
 
 def _phi(
-    in_channels: int, hidden: Sequence[int], out_channels: int, kernel: int, bias: bool
+    in_channels: int, hidden: Sequence[int], out_channels: int, kernel: int, bias: bool, device: torch.device
 ) -> nn.Sequential:
-    """Conv MLP: ``in -> hidden... -> out`` with ReLU between, ``kernel`` x ``kernel``, same padding."""
+    """Conv MLP: ``in -> hidden... -> out`` with ReLU between, ``kernel`` x ``kernel``, same padding. Built on
+    the CPU (its initialisation draws from the CPU generator, the same numbers on every machine), then moved
+    to ``device``."""
     sizes = [in_channels, *hidden, out_channels]
     layers: list[nn.Module] = []
     for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:], strict=True)):
-        layers.append(nn.Conv2d(a, b, kernel, padding=kernel // 2, bias=bias))
+        layers.append(nn.Conv2d(a, b, kernel, padding=kernel // 2, bias=bias, device="cpu"))
         if i < len(sizes) - 2:
             layers.append(nn.ReLU())
-    return nn.Sequential(*layers)
+    return nn.Sequential(*layers).to(device)
 
 
 def _softmax_gates(logits: Tensor, temperature: float) -> Tensor:
@@ -107,7 +115,7 @@ class VolumeAwarePixelRouter(nn.Module):
         super().__init__()
         self.config = config
         self.weights = GaussianWeights(experts, (config.init_w, config.init_w_dir), config.init_w_time)
-        self.phi = _phi(2 + 6, (6, 3), 1, config.phi_kernel, bias=False)
+        self.phi = _phi(2 + 6, (6, 3), 1, config.phi_kernel, bias=False, device=experts_device(experts))
 
     def param_groups(self) -> dict[str, list[Tensor]]:
         return {**self.weights.param_groups(), "phi": list(self.phi.parameters())}
@@ -148,7 +156,7 @@ class PixelRouter(nn.Module):
         super().__init__()
         self.config = config
         k, h = len(experts), config.pixel_hidden
-        self.phi = _phi(3 * k + 7, (h, h), k, config.phi_kernel, bias=True)
+        self.phi = _phi(3 * k + 7, (h, h), k, config.phi_kernel, bias=True, device=experts_device(experts))
 
     def param_groups(self) -> dict[str, list[Tensor]]:
         return {"phi": list(self.phi.parameters())}
@@ -205,7 +213,8 @@ class VolumeRouter(nn.Module):
         frames = []
         for k, (expert, inp) in enumerate(zip(experts, inputs, strict=True)):
             rgb = frame_colors(inp.frame, camera)
-            one_hot = torch.nn.functional.one_hot(torch.full((len(inp.frame),), k), k_all).to(rgb)
+            index = torch.full((len(inp.frame),), k, device=rgb.device)
+            one_hot = torch.nn.functional.one_hot(index, k_all).to(rgb)
             frame = depth_culled(inp.frame, camera, inp.near, inp.far).with_colors(
                 torch.cat([rgb, one_hot], dim=1)
             )
@@ -232,5 +241,5 @@ ROUTER_CLASSES = {"vapr": VolumeAwarePixelRouter, "pixel": PixelRouter, "volume"
 
 
 def build_router(experts: Sequence[Expert], config: RouterConfig) -> nn.Module:
-    """The router of ``config.variant`` for ``experts``."""
+    """The router of ``config.variant`` for ``experts``, on their device (``experts_device``)."""
     return ROUTER_CLASSES[config.variant](experts, config)

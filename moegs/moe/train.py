@@ -16,20 +16,23 @@ Example::
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import torch
+from torch import Tensor
 from tqdm.auto import tqdm
 
 from moegs.data.scene import ImageCache, Scene, View
+from moegs.device import device_name, gpu_model
 from moegs.experts.base import Expert, splat_inputs_bytes
 from moegs.io import save_checkpoint, to_dict, write_json
 from moegs.io.config import config_changes
 from moegs.moe.config import RouterConfig
-from moegs.moe.model import ROUTER_CHECKPOINT, MoEGS, _check_experts, read_router, winner_shares
+from moegs.moe.model import ROUTER_CHECKPOINT, MoEGS, _check_experts, read_router, winner_share
 from moegs.train.evaluate import eval_views, evaluate_renderer
 from moegs.train.losses import photometric
 from moegs.train.optim import Optimizers
@@ -41,6 +44,8 @@ INPUTS_CACHE_BYTES = 2 << 30
 """Default memory for the frozen experts' rasterizer inputs during router training (2 GiB)."""
 RADAM_EPS = 1e-8
 """The code builds ``torch.optim.RAdam(..., lr=0.001)`` with torch's default eps (kept with Adam too)."""
+LOG_EVERY = 10
+"""Router steps between reads of the loss history from the device (and its finiteness check)."""
 
 
 def router_param_groups(model: MoEGS) -> list[ParamGroup]:
@@ -60,7 +65,7 @@ def router_param_groups(model: MoEGS) -> list[ParamGroup]:
 @torch.no_grad()
 def evaluate_moe(model: MoEGS, views: Sequence[View], background, profile: str = "moegs") -> dict[str, Any]:
     """``evaluate_renderer`` of the blend, with every expert's image of the same render as a component,
-    and the share of pixels each expert wins.
+    and the share of pixels each expert wins; ``views`` and ``background`` on the model's device.
 
     Returns:
         ``evaluate_renderer``'s dict without ``components``, plus ``"experts": [{"name", **KEYS}]`` and
@@ -72,24 +77,66 @@ def evaluate_moe(model: MoEGS, views: Sequence[View], background, profile: str =
 
     def render(camera):
         out = model.render(camera, background)
-        shares.append(winner_shares(out.gates))
+        shares.append(winner_share(out.gates))
         return out.image, {str(k): image for k, image in enumerate(out.expert_images)}
 
     scores = evaluate_renderer(render, views, profile)
     components = scores.pop("components")
     scores["experts"] = [{"name": e.name, **components[str(k)]} for k, e in enumerate(model.experts)]
-    scores["winner_share"] = torch.tensor(shares).mean(0).tolist()
+    scores["winner_share"] = torch.stack(shares).mean(0).tolist()
     return scores
 
 
-def _state(model: MoEGS, step: int, optimizers: Optimizers, sampler: ViewSampler, history: list[float]):
+class LossHistory:
+    """The loss of every router step: ``values`` (floats) and the steps not read back yet, kept on the
+    device. ``read()`` turns those into floats in one host read (every ``LOG_EVERY`` steps, before a
+    checkpoint and at the end) and raises ``FloatingPointError`` naming the first non-finite one's step
+    and view, so no checkpoint holds a NaN."""
+
+    def __init__(self, values: list[float]) -> None:
+        self.values = values
+        self.pending: list[tuple[int, str, Tensor]] = []
+
+    def add(self, step: int, view: View, loss: Tensor) -> None:
+        self.pending.append((step, view.key, loss))
+
+    def read(self) -> list[float]:
+        if self.pending:
+            pending, self.pending = self.pending, []
+            losses = torch.stack([loss for _, _, loss in pending]).tolist()
+            for (step, key, _), value in zip(pending, losses, strict=True):
+                if not math.isfinite(value):
+                    raise FloatingPointError(
+                        f"router step {step}: loss of view {key} is {value} (losses are read back every "
+                        f"{LOG_EVERY} steps; this read ran after step {pending[-1][0]})"
+                    )
+            self.values.extend(losses)
+        return self.values
+
+
+def router_step(
+    model: MoEGS, view: View, background, frozen: ImageCache, optimizers: Optimizers, step: int
+) -> Tensor:
+    """One router iteration on ``view`` (scene placed on the model's device): render, loss, backward,
+    optimiser step. Returns the loss, detached and not read back."""
+    optimizers.set_step(step)
+    inputs = model.expert_inputs(view.camera, background, frozen)
+    rendered = model.render(view.camera, background, inputs=inputs)
+    loss = photometric(rendered.image, view.image(), model.config.lambda_dssim)
+    loss.backward()
+    optimizers.step()
+    optimizers.zero_grad()
+    return loss.detach()
+
+
+def _state(model: MoEGS, step: int, optimizers: Optimizers, sampler: ViewSampler, history: LossHistory):
     return {
         **model.checkpoint_state(),
         "step": step,
         "optimizers": optimizers.state_dict(),
         "sampler": sampler.state_dict(),
         "rng": {"torch": torch.get_rng_state()},
-        "history": list(history),
+        "history": list(history.read()),
     }
 
 
@@ -107,8 +154,9 @@ def train_router(
     """Train a router over the frozen ``experts`` on ``scene``'s training views, then evaluate.
 
     Args:
-        experts: trained experts (frozen here; their parameters are never changed).
-        scene: the scene they were trained on.
+        experts: trained experts (frozen here; their parameters are never changed), on the device to train
+            on: the router is built there and the losses are read back every ``LOG_EVERY`` steps.
+        scene: the scene they were trained on (cameras and images are placed beside the experts).
         config: router settings (default: the ``quick`` preset).
         out_dir: where ``router.safetensors`` (resumable), ``config.json`` and ``metrics.json`` go.
         resume: continue from ``out_dir``'s checkpoint when there is one.
@@ -125,13 +173,14 @@ def train_router(
     config = config or RouterConfig.from_preset("quick")
     torch.manual_seed(config.seed)
     model = MoEGS(experts, config)
+    scene = scene.to(model.device)
     frozen = ImageCache(max_bytes=inputs_cache_bytes, nbytes=splat_inputs_bytes)
     optimizers = Optimizers(router_param_groups(model))
     sampler = ViewSampler([0] * len(scene.train), 1, config.seed)
     out = Path(out_dir) if out_dir is not None else None
     ckpt = out / ROUTER_CHECKPOINT if out is not None else None
     with stop_requests(out is not None) as stop:  # SIGINT/SIGTERM: checkpoint, then stop
-        done, history, resumed_from = 0, [], None
+        done, history, resumed_from = 0, LossHistory([]), None
         if resume and ckpt is not None and ckpt.is_file():
             state = read_router(ckpt)
             _check_experts(state, experts, ckpt)
@@ -146,7 +195,7 @@ def train_router(
             sampler.load_state_dict(state["sampler"])
             torch.set_rng_state(state["rng"]["torch"])
             done = resumed_from = state["step"]
-            history = list(state["history"])
+            history = LossHistory(list(state["history"]))
         if out is not None:
             write_json(
                 out / "config.json",
@@ -155,6 +204,8 @@ def train_router(
                     "experts": [e.name for e in experts],
                     "scene": scene.name,
                     "stand_in": scene.stand_in,
+                    "device": device_name(model.device),
+                    "gpu": gpu_model(model.device),
                 },
             )
 
@@ -174,24 +225,21 @@ def train_router(
             if stop["signal"] is not None:
                 break
             start = time.perf_counter()
-            optimizers.set_step(step)
             view = scene.train[sampler.next()[0]]
-            inputs = model.expert_inputs(view.camera, scene.background, frozen)
-            rendered = model.render(view.camera, scene.background, inputs=inputs)
-            loss = photometric(rendered.image, view.image(), config.lambda_dssim)
-            if not torch.isfinite(loss):
-                raise FloatingPointError(f"router step {step}: loss of view {view.key} is {float(loss)}")
-            loss.backward()
-            optimizers.step()
-            optimizers.zero_grad()
-            history.append(float(loss.detach()))
+            try:
+                loss = router_step(model, view, scene.background, frozen, optimizers, step)
+            except FloatingPointError as err:  # the rasterizer names a non-finite input: an earlier NaN loss?
+                history.read()
+                raise FloatingPointError(f"router step {step}: view {view.key}: {err}") from err
+            history.add(step, view, loss)
             done = step
             seconds += time.perf_counter() - start
-            if step % 10 == 0:
-                bar.set_postfix(loss=f"{history[-1]:.4f}")
+            if step % LOG_EVERY == 0:
+                bar.set_postfix(loss=f"{history.read()[-1]:.4f}")
             if ckpt is not None and config.checkpoint_every and step % config.checkpoint_every == 0:
                 save_checkpoint(ckpt, _state(model, step, optimizers, sampler, history))
         bar.close()
+        history.read()
         if ckpt is not None:
             save_checkpoint(ckpt, _state(model, done, optimizers, sampler, history))
 
@@ -206,11 +254,12 @@ def train_router(
         "experts": [e.name for e in experts],
         "scene": scene.name,
         "stand_in": scene.stand_in,
+        "device": device_name(model.device),
         "completed": completed,
         "step": done,
         "iterations": config.iterations,
         "train_seconds": seconds,
-        "final_loss": history[-1] if history else None,
+        "final_loss": history.values[-1] if history.values else None,
         "resumed_from": resumed_from,
         "test": test,
     }
