@@ -206,8 +206,9 @@ class Scene:
         kept in a cache of ``device_image_bytes(device)`` (8-bit images stay 8-bit). Initial points and
         bounds stay on the CPU, where experts are built."""
         device = torch.device(device)
-        if device.type == "cpu" and self.background.device.type == "cpu":
-            return self
+        here = self.background.device
+        if here.type == device.type and (here.index or 0) == (device.index or 0):
+            return self  # a scene on the CPU, or one placed on ``device`` already
         if device not in self._placed:
             self._placed[device] = replace(
                 self,

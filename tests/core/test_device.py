@@ -83,7 +83,7 @@ def test_a_scene_placed_on_a_device_moves_cameras_background_and_images_there():
     scene = tiny_scene(num_frames=2, cameras=2, size=16)
     assert scene.to("cpu") is scene
     placed = scene.to("meta")
-    assert placed is scene.to(torch.device("meta"))  # once per device
+    assert placed is scene.to(torch.device("meta")) is placed.to("meta")  # once per device
     assert len(placed.train) == len(scene.train) and len(placed.test) == len(scene.test)
     view = placed.train[1]
     assert view.camera.K.device.type == "meta" and placed.background.device.type == "meta"
