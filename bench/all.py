@@ -19,6 +19,12 @@ at the start, and ``--require-real`` makes it an error instead.
 ``--tables`` accepts ``tab03``, ``3``, ``III``, ``repro-tab3`` (tox env names) and figure ids;
 ``python -m bench.tab03`` is the same as ``--tables tab03``. The preset is ``--preset`` / ``--quick``,
 else ``$MOEGS_PRESET``, else ``paper``.
+
+``--device auto|cpu|cuda`` (``auto``: CUDA when torch sees a GPU) is part of every cell's key, so CPU and
+GPU numbers never mix. On CUDA the local executor runs ``--jobs-per-gpu`` workers on each of ``--gpus``
+GPUs (default: every visible one); on Slurm ``--slurm-gpus`` makes the tasks CUDA tasks. ``--dry-run``
+plans and prints each table's builds with an estimate of H100-hours and CPU-hours (``bench.estimate``);
+``--preset paper`` on the CPU runs only with an explicit ``--device cpu``.
 """
 
 from __future__ import annotations
@@ -60,10 +66,32 @@ def build_parser() -> argparse.ArgumentParser:
         help="local process pool (default), Slurm via submitit, or submitit's local executor",
     )
     p.add_argument(
+        "--device",
+        default="auto",
+        help="auto (CUDA when torch sees a GPU), cpu, cuda or cuda:<index>; part of every cell's key",
+    )
+    p.add_argument(
         "--jobs",
         type=positive_int,
-        default=os.cpu_count() or 1,
-        help="parallel tasks for the local executor (default: one per CPU core, 1 thread each)",
+        default=None,
+        help="parallel tasks for the local executor on the CPU (default: one per CPU core, 1 thread each)",
+    )
+    p.add_argument(
+        "--gpus",
+        type=non_negative_int,
+        default=None,
+        help="GPUs the local executor uses on CUDA (default: every visible GPU; 0 without CUDA)",
+    )
+    p.add_argument(
+        "--jobs-per-gpu",
+        type=positive_int,
+        default=None,
+        help="workers per GPU on CUDA (default 1); CPU threads per worker = cores / workers",
+    )
+    p.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="plan only: print each table's builds and an estimate of H100-hours and CPU-hours, then exit",
     )
     p.add_argument("--timeout", type=positive_float, default=None, help="seconds per task (local executor)")
     p.add_argument(
@@ -97,6 +125,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--slurm-time", type=positive_int, default=240, help="minutes per task on Slurm")
     p.add_argument("--slurm-gpus", type=non_negative_int, default=None, help="GPUs per task on Slurm")
     p.add_argument("--slurm-cpus", type=positive_int, default=None, help="CPUs per task on Slurm")
+    p.add_argument(
+        "--slurm-pack",
+        type=positive_int,
+        default=1,
+        help="ready tasks run one after another in one Slurm job (default 1; --slurm-time is per task)",
+    )
     return p
 
 
@@ -110,10 +144,76 @@ def list_table() -> str:
     return "\n".join(rows)
 
 
-def _executor(args: argparse.Namespace):
+def choose_device(args: argparse.Namespace) -> tuple[str, list[int]]:
+    """``(device kind of the tasks, GPUs of the local executor)`` the command line asks for; ``ValueError``
+    (one line) for a device this machine lacks or options that contradict it. Slurm runs take the kind
+    from ``--slurm-gpus``; ``--no-run`` and ``--dry-run`` compute nothing, so need no GPU here."""
+    name = args.device.strip().lower()
+    if args.executor != "local":
+        if args.gpus is not None or args.jobs_per_gpu is not None:
+            raise ValueError(
+                "--gpus and --jobs-per-gpu are for the local executor; on Slurm use --slurm-gpus"
+            )
+        if name == "cpu" and args.slurm_gpus:
+            raise ValueError(f"--slurm-gpus {args.slurm_gpus} with --device cpu: a GPU nothing would use")
+        if name.startswith("cuda") and not args.slurm_gpus:
+            raise ValueError(f"--device {args.device} on Slurm needs --slurm-gpus N (GPUs per job)")
+        return ("cuda" if args.slurm_gpus else "cpu"), []
+    if name == "cpu":
+        if args.gpus:
+            raise ValueError(f"--gpus {args.gpus} with --device cpu: use --device cuda or auto for GPUs")
+        if args.jobs_per_gpu is not None:
+            raise ValueError("--jobs-per-gpu with --device cpu: use --jobs for CPU workers")
+        return "cpu", []
+    if args.no_run or args.dry_run:
+        kind, _, index = name.partition(":")
+        if kind == "cuda" and (not index or index.isdigit()):
+            return "cuda", []
+    import torch
+
+    from moegs.device import resolve_device
+
+    device = resolve_device(name)
+    count = torch.cuda.device_count() if device.type == "cuda" else 0
+    if args.gpus and args.gpus > count:
+        have = (
+            f"has {count} GPU(s) (CUDA_VISIBLE_DEVICES may hide others)" if count else "has no GPU torch sees"
+        )
+        raise ValueError(f"--gpus {args.gpus}: this machine {have}")
+    if device.type == "cpu":
+        if args.jobs_per_gpu is not None:
+            raise ValueError("--jobs-per-gpu: this machine has no GPU torch sees; use --jobs for CPU workers")
+        return "cpu", []
+    if args.jobs is not None:
+        raise ValueError(f"--jobs with --device {args.device}: on GPUs use --gpus and --jobs-per-gpu")
+    if args.gpus == 0:
+        raise ValueError(f"--gpus 0 with --device {args.device}: use --device cpu for a CPU run")
+    if ":" in name:
+        if args.gpus not in (None, 1):
+            raise ValueError(f"--gpus {args.gpus} with --device {args.device}: that names one GPU")
+        return "cuda", [device.index]
+    return "cuda", list(range(args.gpus or count))
+
+
+def device_line(args: argparse.Namespace, kind: str, gpus: list[int]) -> str:
+    """How outputs name the device of this run: ``cpu``, ``cuda (2 x NVIDIA H100 80GB HBM3)``."""
+    if kind == "cpu":
+        return "cpu"
+    if args.executor != "local":
+        return f"cuda ({args.slurm_gpus} GPU(s) per Slurm job)"
+    if not gpus:
+        return "cuda"
+    import torch
+
+    from moegs.device import gpu_model
+
+    return f"cuda ({len(gpus)} x {gpu_model(torch.device('cuda', gpus[0]))})"
+
+
+def _executor(args: argparse.Namespace, gpus: list[int] | None = None):
     from bench.executors import make_executor
 
-    params = {"timeout_min": args.slurm_time}
+    params = {"timeout_min": args.slurm_time * args.slurm_pack}
     if args.slurm_partition:
         params["slurm_partition"] = args.slurm_partition
     if args.slurm_gpus is not None:
@@ -121,7 +221,14 @@ def _executor(args: argparse.Namespace):
     if args.slurm_cpus is not None:
         params["cpus_per_task"] = args.slurm_cpus
     return make_executor(
-        args.executor, jobs=args.jobs, timeout=args.timeout, parameters=params, threads=args.slurm_cpus
+        args.executor,
+        jobs=args.jobs or os.cpu_count() or 1,
+        timeout=args.timeout,
+        parameters=params,
+        threads=args.slurm_cpus,
+        gpus=gpus or [],
+        jobs_per_gpu=args.jobs_per_gpu or 1,
+        pack=args.slurm_pack,
     )
 
 
@@ -147,11 +254,13 @@ def write_outputs(
     reports_dir: Path,
     run: dict | None = None,
     quick_summary: Path | None = None,
+    device: str | None = None,
 ) -> dict:
     """Tables and plots for ``selected``, the report for every spec of ``plan``; a ``real_only`` preset
     also writes its paper | standard | quick tables (``bench.sidebyside``). ``quick_summary``: the quick
     outputs' ``summary.json``, whose seed spreads a quick run pools with its own and a run at another
-    preset borrows for the scenes whose quick cells are not in ``workspace`` (``bench.signals.run_noise``)."""
+    preset borrows for the scenes whose quick cells are not in ``workspace`` (``bench.signals.run_noise``).
+    ``device``: how the headers name the run's device (default: the plan's device kind)."""
     from bench.latex import write_index, write_table
     from bench.plots import plot_spec
     from bench.report import spec_report, write_report
@@ -162,7 +271,8 @@ def write_outputs(
     from bench.values import SpecValues
 
     reports, written, comparisons = [], [], []
-    header = f"preset {plan.preset.name}, generated {time.strftime('%Y-%m-%d %H:%M')}"
+    device = device or plan.device
+    header = f"preset {plan.preset.name}, device {device}, generated {time.strftime('%Y-%m-%d %H:%M')}"
     noise = run_noise(plan, workspace, quick_summary)
     for sp in plan.specs:
         values = SpecValues(sp, workspace, noise_for(noise, [s.name for s in sp.scenes]))
@@ -179,7 +289,7 @@ def write_outputs(
             old = tables_dir / f"{sp.spec.id}.tex"
             latex = old if old.is_file() else None
         reports.append(spec_report(values, plan.preset, latex, figures))
-        comparison = compare(sp.spec, workspace)
+        comparison = compare(sp.spec, workspace, device=plan.device)
         if comparison is not None and comparison.has_values:
             comparisons.append(comparison)
             if plan.preset.real_only and sp.spec.id in selected:
@@ -196,7 +306,7 @@ def write_outputs(
     }
     identity = plan.identity()
     history = runs_of(workspace.root, identity["keys_digest"])
-    paths = write_report(reports, plan.preset, reports_dir, run, signals, identity, history)
+    paths = write_report(reports, plan.preset, reports_dir, run, signals, identity, history, device)
     return {"reports": reports, "paths": paths, "tables": written}
 
 
@@ -211,8 +321,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {err.args[0]}", file=sys.stderr)
         return 2
     preset = get_preset("quick" if args.quick else args.preset)
+    try:
+        device, gpus = choose_device(args)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
 
-    from dataclasses import fields
+    from dataclasses import fields, replace
 
     from bench.plan import make_plan
     from bench.runlog import read_runs, record_run
@@ -236,8 +351,8 @@ def main(argv: list[str] | None = None) -> int:
         specs = with_candidates(specs, selected, args.candidate)
         if specs is None:
             return 2
-    plan = make_plan(specs, preset)
-    run_plan = type(plan)(preset, [sp for sp in plan.specs if sp.spec.id in selected])
+    plan = make_plan(specs, preset, device)
+    run_plan = replace(plan, specs=[sp for sp in plan.specs if sp.spec.id in selected])
     complete = list_specs()
     if preset.real_only:
         complete = [sp.spec.id for sp in plan.specs if sp.scenes and not sp.uses_stand_in]
@@ -254,27 +369,50 @@ def main(argv: list[str] | None = None) -> int:
                 f"[bench] error: no selected table runs on real data at preset {preset.name}", file=sys.stderr
             )
             return 2
-        plan = type(plan)(preset, [sp for sp in plan.specs if sp.spec.id in complete])
-        run_plan = type(plan)(preset, [sp for sp in plan.specs if sp.spec.id in selected])
+        plan = replace(plan, specs=[sp for sp in plan.specs if sp.spec.id in complete])
+        run_plan = replace(plan, specs=[sp for sp in plan.specs if sp.spec.id in selected])
     stand_ins = data_line(run_plan)
     if stand_ins:
         print(f"[bench] {stand_ins}", file=sys.stderr)
         if args.require_real:
             print("[bench] error: --require-real and real data is missing (see above)", file=sys.stderr)
             return 2
+    if args.dry_run:
+        from bench.estimate import render
+
+        print(render(run_plan, device))
+        return 0
+    if (
+        preset.name == "paper"
+        and device == "cpu"
+        and args.device.strip().lower() != "cpu"
+        and not args.no_run
+    ):
+        from bench.estimate import plan_estimates
+
+        total = plan_estimates(run_plan)[1]
+        print(
+            f"error: --preset paper on the CPU: about {total.cpu_hours:.0f} CPU-hours "
+            f"({total.gpu_hours:.0f} H100-hours on a GPU) for the selected tables (--dry-run lists them); "
+            "pass --device cpu to run it on the CPU anyway",
+            file=sys.stderr,
+        )
+        return 2
+    on = device_line(args, device, gpus)
     subset = set(selected) != set(complete)
     tables_dir, reports_dir = output_dirs(args.out, preset, selected, complete)
     n_eval = len(run_plan.eval_tasks())
     n_build = sum(len(level) for level in run_plan.build_levels())
     print(
-        f"[bench] preset {preset.name}; {len(selected)} spec(s); {n_build} build task(s), {n_eval} eval "
-        f"task(s); workspace {workspace.root}",
+        f"[bench] preset {preset.name}, device {on}; {len(selected)} spec(s); {n_build} build task(s), "
+        f"{n_eval} eval task(s); workspace {workspace.root}",
         file=sys.stderr,
     )
     run = None
     if not args.no_run:
+        executor = _executor(args, gpus)
         try:
-            summary = execute_interruptibly(run_plan, workspace, _executor(args), not args.no_progress)
+            summary = execute_interruptibly(run_plan, workspace, executor, not args.no_progress)
         except KeyboardInterrupt:
             print(
                 "[bench] interrupted: finished cells and training checkpoints are kept; run the same "
@@ -292,12 +430,14 @@ def main(argv: list[str] | None = None) -> int:
     quick_summary = output_dirs(args.out, get_preset("quick"), complete, complete)[1] / "summary.json"
     reported = run_plan if subset else plan
     if run is not None:  # before the outputs, so that this run's report lists it too
-        jobs = args.jobs if args.executor == "local" else None
+        jobs = executor.jobs if args.executor == "local" else None
         seconds = time.perf_counter() - start
-        record_run(workspace.root, preset.name, reported.identity(), run, args.executor, jobs, seconds)
-    outputs = write_outputs(reported, workspace, selected, tables_dir, reports_dir, run, quick_summary)
+        record_run(
+            workspace.root, preset.name, reported.identity(), run, args.executor, jobs, seconds, device=on
+        )
+    outputs = write_outputs(reported, workspace, selected, tables_dir, reports_dir, run, quick_summary, on)
     elapsed = time.perf_counter() - start
-    _print_summary(outputs["reports"], selected, outputs["paths"], elapsed)
+    _print_summary(outputs["reports"], selected, outputs["paths"], elapsed, f"preset {preset.name}, {on}")
     if run and run["failures"]:
         print(
             f"[bench] {len(run['failures'])} task(s) failed; see the logs above and the report",
@@ -376,11 +516,12 @@ def data_line(plan) -> str:
     return f"no real data for {len(missing)} dataset(s) under {where}: stand-ins {', '.join(missing)}"
 
 
-def _print_summary(reports, selected, paths, elapsed: float) -> None:
+def _print_summary(reports, selected, paths, elapsed: float, what: str = "") -> None:
     from rich.console import Console
     from rich.table import Table
 
-    table = Table(title=f"moegs bench ({elapsed:.0f} s)", show_lines=False)
+    title = f"moegs bench ({what}, {elapsed:.0f} s)" if what else f"moegs bench ({elapsed:.0f} s)"
+    table = Table(title=title, show_lines=False)
     for col in ("id", "status", "claims held/failed/within noise/n.a."):
         table.add_column(col, overflow="fold")
     for rep in reports:

@@ -69,6 +69,8 @@ class SpecPlan:
 class Plan:
     preset: BenchPreset
     specs: list[SpecPlan]
+    device: str = "cpu"
+    """The device kind every task of the plan runs on (``bench.tasks.DEVICE_KINDS``)."""
 
     def eval_tasks(self) -> list[Task]:
         """Unique evaluation tasks in spec order."""
@@ -155,7 +157,13 @@ def _scene_seeds(
 
 
 def _slots(
-    spec: Spec, row: Row, scenes: list[SceneRef], seeds: list[int], preset: BenchPreset, measured: set[str]
+    spec: Spec,
+    row: Row,
+    scenes: list[SceneRef],
+    seeds: list[int],
+    preset: BenchPreset,
+    measured: set[str],
+    device: str,
 ) -> list[Slot]:
     if row.kind in NOT_COMPUTED:
         return [Slot(row.name, None, 0, None, None, row.kind)]
@@ -175,24 +183,32 @@ def _slots(
                     None
                     if gone
                     else Task(
-                        "eval", row.kind, params, scene.name, load_kwargs(scene, preset), preset.name, seed
+                        "eval",
+                        row.kind,
+                        params,
+                        scene.name,
+                        load_kwargs(scene, preset),
+                        preset.name,
+                        seed,
+                        device,
                     )
                 )
                 out.append(Slot(row.name, scene, seed, column, task, status, tuple(gone)))
     return out
 
 
-def plan_spec(spec: Spec, preset: BenchPreset) -> SpecPlan:
-    """Slots of one spec under ``preset``."""
+def plan_spec(spec: Spec, preset: BenchPreset, device: str = "cpu") -> SpecPlan:
+    """Slots of one spec under ``preset``, its tasks on ``device`` (``cpu`` or ``cuda``)."""
     scenes = resolve_scenes(spec.dataset, preset, spec.scenes) if spec.dataset else []
     seeds = list(range(preset.seeds)) if spec.axis == "seeds" else list(spec.seeds)
     sp = SpecPlan(spec, scenes, seeds)
     measured = stability_scenes(preset) if preset.scene_seeds > len(seeds) else set()
     for row in spec.rows:
-        sp.slots += _slots(spec, row, scenes, seeds, preset, measured)
+        sp.slots += _slots(spec, row, scenes, seeds, preset, measured, device)
     return sp
 
 
-def make_plan(specs: list[str | Spec], preset: BenchPreset) -> Plan:
-    """The plan of several specs (ids in any accepted spelling, or ``Spec`` objects)."""
-    return Plan(preset, [plan_spec(s if isinstance(s, Spec) else get_spec(s), preset) for s in specs])
+def make_plan(specs: list[str | Spec], preset: BenchPreset, device: str = "cpu") -> Plan:
+    """The plan of several specs (ids in any accepted spelling, or ``Spec`` objects) on ``device``."""
+    specs = [s if isinstance(s, Spec) else get_spec(s) for s in specs]
+    return Plan(preset, [plan_spec(s, preset, device) for s in specs], device)

@@ -154,12 +154,14 @@ def _header(
     run: dict[str, Any] | None,
     cells: dict[str, Any] | None,
     history: list[dict[str, Any]] | None,
+    device: str = "cpu",
 ) -> dict[str, Any]:
     return {
         "created": time.strftime("%Y-%m-%d %H:%M:%S %z"),
         "preset": preset.name,
         "preset_description": preset.description,
         "reduced_scale": preset.reduced,
+        "device": device,
         "machine": f"{platform.node()} ({platform.machine()}, {platform.system()})",
         "moegs_code_version": code_version(),
         "git": git_commit(),
@@ -439,6 +441,7 @@ def render_markdown(
         f"- created: {h['created']} on {h['machine']}",
         f"- preset: **{h['preset']}** ({h['preset_description']})"
         + (" - **reduced scale: numbers are not the paper's protocol**" if h["reduced_scale"] else ""),
+        f"- device: **{h.get('device', 'cpu')}** (part of every cell's key: CPU and GPU numbers never mix)",
         f"- library code version: `{h['moegs_code_version']}`, git: `{h['git'].get('commit')}`"
         + (" (moegs has uncommitted changes)" if h["git"].get("dirty") else ""),
         *(
@@ -542,6 +545,7 @@ def render_html(reports: list[SpecReport], header: dict[str, Any], base: Path | 
         "<h1>moegs reproduction report</h1>",
         f"<p>created {e(h['created'])} on {e(h['machine'])}; preset <b>{e(h['preset'])}</b> "
         f"({e(h['preset_description'])}){' - <b>reduced scale</b>' if h['reduced_scale'] else ''}; "
+        f"device <b>{e(h.get('device', 'cpu'))}</b>; "
         f"library code version <code>{e(h['moegs_code_version'])}</code>, git "
         f"<code>{e(str(h['git'].get('commit')))}</code>.</p>",
         *history_html(h.get("history", [])),
@@ -622,13 +626,14 @@ def write_report(
     signals: dict[str, Any] | None = None,
     cells: dict[str, Any] | None = None,
     history: list[dict[str, Any]] | None = None,
+    device: str = "cpu",
 ) -> dict[str, Path]:
     """Write REPORT.md, REPORT.html and summary.json into ``out_dir``; ``signals`` (``bench.signals``:
     ``noise``, ``experts``, ``routing``, ``compute``) go into the report and into summary.json as top-level
     keys; ``cells``: the plan's ``identity()``, in the header; ``history``: the workspace's earlier runs
-    of that plan (``bench.runlog``), in the header."""
+    of that plan (``bench.runlog``), in the header; ``device``: the run's device (``bench.all``)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    header = _header(preset, run, cells, history)
+    header = _header(preset, run, cells, history, device)
     signals = signals or {}
     paths = {"md": out_dir / "REPORT.md", "html": out_dir / "REPORT.html", "json": out_dir / "summary.json"}
     write_text_atomic(paths["md"], render_markdown(reports, header, out_dir, signals))

@@ -75,11 +75,12 @@ def record_run(
     executor: str,
     jobs: int | None,
     seconds: float,
+    device: str = "cpu",
 ) -> dict[str, Any]:
     """Append one ``bench.all`` run of the plan ``identity`` (``Plan.identity``) whose cells are done;
     ``run``: the runner's counts (``bench.all``'s ``run`` dict); ``jobs``: the local executor's parallel
     tasks (None for the others); ``seconds``: the command's wall clock so far (planning and cells, before
-    the outputs). Returns the entry."""
+    the outputs); ``device``: where the cells ran (``cpu``, ``cuda (1 x <GPU>)``). Returns the entry."""
     entry = {
         "finished": time.strftime("%Y-%m-%d %H:%M:%S %z"),
         "preset": preset,
@@ -89,6 +90,7 @@ def record_run(
         "machine": machine_line(),
         "executor": executor,
         "jobs": jobs,
+        "device": device,
         **{k: run[k] for k in COUNTS},
         "failures": len(run["failures"]),  # failed cells are among those run
         "cells_seconds": round(run["seconds"], 1),
@@ -131,6 +133,8 @@ def took(entry: dict[str, Any]) -> str:
     minutes = entry["seconds"] / 60
     time = f"{minutes:.1f} min" if minutes >= 1 else f"{entry['seconds']:.0f} s"
     how = f"{entry['jobs']} jobs" if entry["jobs"] else entry["executor"]
+    if entry.get("device", "cpu") != "cpu":  # older entries have no device: they ran on the CPU
+        how += f" on {entry['device']}"
     return f"{time} {cache_state(entry)} ({how}, {entry['machine']})"
 
 

@@ -74,13 +74,15 @@ class Comparison:
         return any(c.value is not None for c in self.ours.values())
 
 
-def compare(spec: Spec, workspace: Workspace, presets: tuple[str, ...] | None = None) -> Comparison | None:
-    """The comparison of ``spec`` under ``presets`` (default ``COMPARED``); ``None`` unless it runs on
-    real scenes only, under every preset."""
+def compare(
+    spec: Spec, workspace: Workspace, presets: tuple[str, ...] | None = None, device: str = "cpu"
+) -> Comparison | None:
+    """The comparison of ``spec`` under ``presets`` (default ``COMPARED``), each with its cells on
+    ``device``; ``None`` unless it runs on real scenes only, under every preset."""
     presets = presets or COMPARED
     if spec.axis != "scenes" or spec.figure:
         return None
-    values = {name: SpecValues(plan_spec(spec, get_preset(name)), workspace) for name in presets}
+    values = {name: SpecValues(plan_spec(spec, get_preset(name), device), workspace) for name in presets}
     first = values[presets[0]]
     if not first.plan.scenes or any(v.plan.uses_stand_in for v in values.values()):
         return None

@@ -228,7 +228,9 @@ def run_noise(plan: Plan, workspace: Workspace, committed: Path | None = None) -
     }
     proxy = {}
     if plan.preset.name != NOISE_PROXY:
-        proxy = seed_noise(make_plan([sp.spec for sp in plan.specs], proxy_preset), workspace)["scenes"]
+        proxy = seed_noise(make_plan([sp.spec for sp in plan.specs], proxy_preset, plan.device), workspace)[
+            "scenes"
+        ]
     for name, entry in [*proxy.items(), *recorded.items()]:
         if name in wanted:
             noise["scenes"].setdefault(name, entry)

@@ -4,8 +4,9 @@ A ``Task`` either *builds* an artefact (a trained expert, a trained router, a Mo
 expert; kept in the checkpoint store and shared by every table that needs it) or *evaluates* a cell
 (one number set for one method on one scene, written as one result JSON). Its key hashes everything
 that changes its output: action, kind, parameters, scene and loader arguments, bench preset (name
-and full definition), seed, and the version of the library code it can run (``bench.codedeps``).
-Two tables asking for the same thing get the same key, so the work is done once.
+and full definition), seed, device kind (``cpu`` or ``cuda``: CPU and GPU numbers never share a key) and
+the version of the library code it can run (``bench.codedeps``). Two tables asking for the same thing on
+the same kind of device get the same key, so the work is done once.
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ from bench.presets import get_preset
 
 SCHEMA = 1
 ACTIONS = ("build", "eval")
+DEVICE_KINDS = ("cpu", "cuda")
+"""What a task runs on (``moegs.device.device_kind``); two GPUs compute alike, so the key has no index."""
 
 
 def _plain(obj: Any) -> Any:
@@ -57,6 +60,7 @@ class Task:
         scene_kwargs: loader keyword arguments (from the preset).
         preset: bench preset name.
         seed: training seed.
+        device: ``"cpu"`` or ``"cuda"`` (the worker runs a ``cuda`` task on its first visible GPU).
     """
 
     action: str
@@ -66,10 +70,13 @@ class Task:
     scene_kwargs: Mapping[str, Any] = field(default_factory=dict)
     preset: str = "quick"
     seed: int = 0
+    device: str = "cpu"
 
     def __post_init__(self) -> None:
         if self.action not in ACTIONS:
             raise ValueError(f"Task.action must be one of {ACTIONS}, got {self.action!r}")
+        if self.device not in DEVICE_KINDS:
+            raise ValueError(f"Task.device must be one of {DEVICE_KINDS}, got {self.device!r}")
         object.__setattr__(self, "params", MappingProxyType(_plain(self.params)))
         object.__setattr__(self, "scene_kwargs", MappingProxyType(_plain(self.scene_kwargs)))
 
@@ -85,6 +92,7 @@ class Task:
             "preset": self.preset,
             "preset_definition": digest(get_preset(self.preset).to_dict()),
             "seed": self.seed,
+            "device": self.device,
             "code_version": self.code_version,
         }
 
@@ -120,17 +128,17 @@ class Task:
             "scene_kwargs": _plain(self.scene_kwargs),
             "preset": self.preset,
             "seed": self.seed,
+            "device": self.device,
         }
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Task:
-        return cls(
-            **{k: data[k] for k in ("action", "kind", "params", "scene", "scene_kwargs", "preset", "seed")}
-        )
+        fields = ("action", "kind", "params", "scene", "scene_kwargs", "preset", "seed")
+        return cls(**{k: data[k] for k in fields}, device=data.get("device", "cpu"))
 
     def derive(self, action: str, kind: str, params: Mapping[str, Any]) -> Task:
-        """A task on the same scene, preset and seed."""
-        return Task(action, kind, params, self.scene, self.scene_kwargs, self.preset, self.seed)
+        """A task on the same scene, preset, seed and device."""
+        return Task(action, kind, params, self.scene, self.scene_kwargs, self.preset, self.seed, self.device)
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Task) and self.key == other.key

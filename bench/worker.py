@@ -3,6 +3,9 @@
 A job file holds the task, the workspace root, the thread count and the log path. A build leaves its
 artefact in the store (or ``<key>.failed.json``); an evaluation writes its result JSON atomically,
 ``status: "failed"`` with the traceback when it raises. The exit status is 0 on success.
+
+A ``cuda`` task runs on the first GPU the process sees (the local executor gives each worker one GPU
+through ``CUDA_VISIBLE_DEVICES``); its artefacts and results record the GPU's model.
 """
 
 from __future__ import annotations
@@ -82,6 +85,14 @@ def _start_threads(threads: int | None) -> None:
     start_cpu_workers()
 
 
+def task_device(task: Task):
+    """The ``torch.device`` of ``task``: the CPU, or the first GPU this process sees for ``cuda``
+    (``ValueError`` in one line when it sees none)."""
+    from moegs.device import resolve_device
+
+    return resolve_device("cuda:0" if task.device == "cuda" else task.device)
+
+
 def _evaluate(task: Task, ctx: Context, log: Path) -> dict[str, Any]:
     start = time.perf_counter()
     base = {
@@ -111,6 +122,7 @@ def _evaluate(task: Task, ctx: Context, log: Path) -> dict[str, Any]:
             | {"kwargs": dict(task.scene_kwargs)},
             "artifacts": ctx.used,
             "preset": ctx.preset.to_dict(),
+            "device": ctx.device_record(),
             "hashes": {
                 "task_key": task.key,
                 "scene_input": scene_meta.get("input_hash"),
@@ -130,6 +142,7 @@ def _evaluate(task: Task, ctx: Context, log: Path) -> dict[str, Any]:
             "status": "failed",
             "metrics": {},
             "artifacts": ctx.used,
+            "device": ctx.device_record(),
             "error": f"{type(err).__name__}: {err}",
             "traceback": traceback.format_exc(),
             "timings": {"total_s": time.perf_counter() - start},
@@ -180,14 +193,42 @@ def run_job(job_file: str | Path, redirect: bool = False) -> dict[str, Any]:
     workspace = Workspace(job["workspace"])
     log = Path(job["log"])
     with _redirect(log if redirect else None):
-        print(f"[bench] {time.strftime('%H:%M:%S')} {task.action} {task.slug} key={task.key}", flush=True)
+        print(
+            f"[bench] {time.strftime('%H:%M:%S')} {task.action} {task.slug} on {task.device} key={task.key}",
+            flush=True,
+        )
         _start_threads(job.get("threads"))
-        ctx = Context(workspace, task.preset, progress=False)
+        ctx = Context(workspace, task.preset, progress=False, device=task_device(task))
         ctx.task = task
         if task.action == "build":
             return _build(task, ctx, log)
         result = _evaluate(task, ctx, log)
         return {"key": task.key, "status": result["status"]}
+
+
+def _append_traceback(job_file: str | Path) -> None:
+    """Append the exception being handled to the log of ``job_file`` (when it names one)."""
+    try:
+        log = json.loads(Path(job_file).read_text()).get("log")
+    except (OSError, ValueError):
+        return
+    if log:
+        with open(log, "a") as fh:
+            fh.write(traceback.format_exc())
+
+
+def run_jobs(job_files: list[str | Path], redirect: bool = True) -> list[str]:
+    """Run several job files one after another (a packed Slurm job): per job ``""`` when it succeeded, else
+    its error in one line (its traceback goes to its log); one failure does not stop the others."""
+    errors = []
+    for job_file in job_files:
+        try:
+            run_job(job_file, redirect)
+            errors.append("")
+        except Exception as err:  # noqa: BLE001 - reported per task, with the traceback in its log
+            _append_traceback(job_file)
+            errors.append(f"{type(err).__name__}: {err}".splitlines()[0])
+    return errors
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -69,14 +69,14 @@ def recipe_of(ctx: Any, task: Task, expert: str | None = None, extra: dict | Non
 
 
 def load_trained_expert(ctx: Any, build: Task, scene: Any = None):
-    """The trained expert of a build task, in eval mode, on ``scene`` (default: the task's scene on its
-    recipe's background)."""
+    """The trained expert of a build task, in eval mode, on ``ctx.device``, for ``scene`` (default: the
+    task's scene on its recipe's background)."""
     from moegs.train.entry import load_trained
 
     folder = ctx.artifact(build)
     if scene is None:
         scene = ctx.scene(build, recipe_of(ctx, build).background)
-    expert, _state = load_trained(folder, scene)
+    expert, _state = load_trained(folder, scene, device=ctx.device)
     return expert
 
 
@@ -115,10 +115,12 @@ def train_hours(ctx: Any, builds: list[Task]) -> float:
 
 
 def train_build(ctx: Any, task: Task, recipe: Any, out: Any) -> dict[str, Any]:
-    """Train ``recipe`` on ``task``'s scene (on the recipe's background) into ``out``; the build's record."""
+    """Train ``recipe`` on ``task``'s scene (on the recipe's background) into ``out``, on ``ctx.device``; the
+    build's record."""
     from moegs.train.entry import train_recipe
 
-    _, result = train_recipe(recipe, ctx.scene(task, recipe.background), out, progress=ctx.progress)
+    scene = ctx.scene(task, recipe.background)
+    _, result = train_recipe(recipe, scene, out, device=ctx.device, progress=ctx.progress)
     return {
         "train_seconds": result["train_seconds"],
         "iterations": result["iterations"],
@@ -130,9 +132,10 @@ def train_build(ctx: Any, task: Task, recipe: Any, out: Any) -> dict[str, Any]:
 
 
 def evaluate_model(ctx: Any, model: Any, scene: Any, builds: list[Task]) -> dict[str, Any]:
-    """The cell of one trained model (``evaluate_cell``) with its memory, the training hours of
-    ``builds`` and its number of Gaussians."""
+    """The cell of one trained model (``evaluate_cell`` on ``scene`` placed on the model's device) with its
+    memory, the training hours of ``builds`` and its number of Gaussians."""
     native = ctx.native_scene(scene)
+    scene = ctx.on_device(scene)
     out = evaluate_cell(expert_renderer(model, scene.background), scene, ctx.preset, native=native)
     out["metrics"]["memory_mb"] = module_megabytes(model)
     out["metrics"]["train_time_h"] = train_hours(ctx, builds)

@@ -56,9 +56,12 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     from moegs.metrics import psnr
     from moegs.train.evaluate import eval_views
 
-    scene = ctx.scene(task, shared_background(ctx, artifacts(task)))
+    loaded = ctx.scene(task, shared_background(ctx, artifacts(task)))
+    scene = ctx.on_device(loaded)
     names = list(task.params["experts"])
-    renders = [expert_renderer(load_trained_expert(ctx, b, scene), scene.background) for b in artifacts(task)]
+    renders = [
+        expert_renderer(load_trained_expert(ctx, b, loaded), scene.background) for b in artifacts(task)
+    ]
     views = sorted(eval_views(scene.test, ctx.preset.test_views), key=lambda v: v.camera.time)
     per_time: dict[float, list[list[float]]] = {}  # full-image PSNR per view and expert
     per_time_dynamic: dict[float, list[list[float]]] = {}
@@ -90,10 +93,10 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     np.savez_compressed(
         files_dir / "bestmap.npz",
         experts=np.array(names),
-        winner=where["winner"].numpy(),
-        errors=errors.numpy(),
-        gt=gt.numpy(),
-        images=images.clamp(0, 1).numpy(),
+        winner=where["winner"].cpu().numpy(),
+        errors=errors.cpu().numpy(),
+        gt=gt.cpu().numpy(),
+        images=images.clamp(0, 1).cpu().numpy(),
         times=np.array(times),
         psnr=mean_psnr,
         psnr_dynamic=mean_dynamic if by_region else np.zeros((0, len(names))),

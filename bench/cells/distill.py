@@ -44,14 +44,11 @@ def deps(task: Task) -> list[Task]:
     return [_teacher(task)]
 
 
-def build(task: Task, ctx: Any, out: Path) -> dict[str, Any]:
-    from moegs.moe import DistillConfig, distill
-    from moegs.train.entry import build_expert
+def config(ctx: Any, task: Task) -> tuple[Any, Any]:
+    """``(the student's recipe, the DistillConfig)`` of a distillation build task at ``ctx.preset``."""
+    from moegs.moe import DistillConfig
 
-    scene = moe_kind.moe_scene(ctx, _teacher(task))
-    teacher = moe_kind.load_model(ctx, _teacher(task))
     recipe = recipe_of(ctx, expert_task(task, task.params["student"]))
-    student = build_expert(recipe, scene)
     cfg = DistillConfig.from_preset(ctx.preset.expert_preset)
     cfg = replace(
         cfg,
@@ -61,6 +58,17 @@ def build(task: Task, ctx: Any, out: Path) -> dict[str, Any]:
             cfg.iterations or recipe.config.train.iterations, ctx.preset.distill_steps
         ),
     )
+    return recipe, cfg
+
+
+def build(task: Task, ctx: Any, out: Path) -> dict[str, Any]:
+    from moegs.moe import distill
+    from moegs.train.entry import build_expert
+
+    scene = moe_kind.moe_scene(ctx, _teacher(task))
+    teacher = moe_kind.load_model(ctx, _teacher(task))  # on ctx.device: distill moves the student there
+    recipe, cfg = config(ctx, task)
+    student = build_expert(recipe, scene)
     result = distill(student, teacher, scene, cfg, out, progress=ctx.progress)
     return {"train_seconds": result.get("train_seconds")}
 

@@ -29,7 +29,7 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     from moegs.metrics import psnr
     from moegs.train.evaluate import eval_views
 
-    scene = moe_kind.moe_scene(ctx, artifacts(task)[0])
+    scene = ctx.on_device(moe_kind.moe_scene(ctx, artifacts(task)[0]))
     model = moe_kind.load_model(ctx, artifacts(task)[0])
     views = sorted(eval_views(scene.test, ctx.preset.test_views), key=lambda v: v.camera.time)
     view = views[len(views) // 2]
@@ -43,10 +43,10 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     np.savez_compressed(
         files_dir / "gates.npz",
         experts=np.array(task.params["experts"]),
-        gates=gates.numpy(),
-        expert_images=out.expert_images.clamp(0, 1).numpy(),
-        image=out.image.clamp(0, 1).numpy(),
-        gt=gt.numpy(),
+        gates=gates.cpu().numpy(),
+        expert_images=out.expert_images.clamp(0, 1).cpu().numpy(),
+        image=out.image.clamp(0, 1).cpu().numpy(),
+        gt=gt.cpu().numpy(),
         view=str(view.key),
     )
     return {

@@ -75,7 +75,7 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
         def frame_at(t: float) -> Any:
             return model.frame(t)
 
-    cams = _cameras(scene, max(2, ctx.preset.mdc_views))
+    cams = _cameras(ctx.on_device(scene), max(2, ctx.preset.mdc_views))
     times = sorted({round(float(v.camera.time), 6) for v in eval_views(scene.test, ctx.preset.test_views)})
     per_time = []
     with torch.no_grad():

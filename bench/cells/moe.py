@@ -6,7 +6,7 @@ Params: ``experts`` (registry names), ``router`` (``vapr`` volume-aware pixel ro
 ``budget`` (experts trained with that fraction of their iterations, Table XVIII), ``convention``
 (``code``, default: the authors' code conventions that produced the paper's numbers; ``paper``: the
 paper's wording, an extra row of Table VI). The router is trained and evaluated on the experts' shared
-background (``_lib.shared_background``).
+background (``_lib.shared_background``), on the device the experts are loaded on (``ctx.device``).
 
 Library API this kind calls (until it exists, cells report "not implemented yet: <name>"):
 
@@ -159,6 +159,8 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
         from moegs.moe import prune as gate_prune
 
         details["pruning"] = gate_prune(model, scene, ratio=None if prune == "gate" else float(prune))
+    native = ctx.native_scene(scene)
+    scene = ctx.on_device(scene)
     single_pass = bool(task.params.get("single_pass", True))
     gates: list[Any] = []  # the gate maps of the evaluation renders (the speed renders come after)
 
@@ -167,7 +169,7 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
         gates.append(out.gates)
         return out.image
 
-    out = evaluate_cell(render, scene, ctx.preset, native=ctx.native_scene(scene))
+    out = evaluate_cell(render, scene, ctx.preset, native=native)
     details["routing"] = routing_signal(gates, eval_views(scene.test, ctx.preset.test_views))
     out["metrics"]["memory_mb"] = module_megabytes(model)
     out["metrics"]["train_time_h"] = train_hours(ctx, [*deps(build_task)[1:], build_task])

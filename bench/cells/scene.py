@@ -19,8 +19,8 @@ def missing(params: dict) -> list[str]:
 
 
 def task_for(task: Task) -> Task:
-    """The scene build task of any task (same scene, loader arguments and preset; seed 0)."""
-    return Task("build", "scene", {}, task.scene, task.scene_kwargs, task.preset, 0)
+    """The scene build task of any task (same scene, loader arguments, preset and device; seed 0)."""
+    return Task("build", "scene", {}, task.scene, task.scene_kwargs, task.preset, 0, task.device)
 
 
 def deps(task: Task) -> list[Task]:

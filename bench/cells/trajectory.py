@@ -100,7 +100,7 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     np.savez_compressed(
         files_dir / "trajectories.npz",
         times=np.asarray(times),
-        means=means[:, stats["selected"]].numpy(),
+        means=means[:, stats["selected"]].cpu().numpy(),
         extent=float(scene.extent),
     )
     metrics = {k: stats[k] for k in ("speed", "curvature", "coherence")}

@@ -224,20 +224,26 @@ def test_failing_cell_is_isolated(run):
     assert res["status"] == "failed" and "dependency" in res["error"]
 
 
-def test_submitit_local_executor(run, tmp_path):
-    """The Slurm path through submitit's local executor: re-evaluate one cell in a copied workspace."""
+@pytest.mark.parametrize("pack", [1, 2])
+def test_submitit_local_executor(run, tmp_path, pack):
+    """The Slurm path through submitit's local executor: re-evaluate cells in a copied workspace (with
+    ``pack=2``, two cells in one job); each result records the device it ran on."""
     ws = Workspace(tmp_path / "ws")
     shutil.copytree(run["ws"].root / "store", ws.root / "store")
-    sp = SpecPlan(run["spec"], [], [0], [_ok_slots(run)[0]])
+    slots = _ok_slots(run)[:pack]
+    sp = SpecPlan(run["spec"], [], [0], slots)
     summary = execute(
         type(run["plan"])(PRESET, [sp]),
         ws,
-        SubmititExecutor(cluster="local", poll_seconds=0.5),
+        SubmititExecutor(cluster="local", poll_seconds=0.5, pack=pack),
         progress=False,
     )
     assert not summary.failures, [o.error for o in summary.failures]
-    assert summary.evals_run == 1 and summary.builds_run == 0
-    assert read_result(ws.result_path(_ok_slots(run)[0].task))["status"] == "ok"
+    assert summary.evals_run == pack and summary.builds_run == 0
+    assert len([p for p in (ws.root / "submitit").iterdir() if p.name.isdigit()]) == 1  # one job
+    for slot in slots:
+        result = read_result(ws.result_path(slot.task))
+        assert result["status"] == "ok" and result["device"] == {"kind": "cpu", "name": "cpu", "gpu": None}
 
 
 def test_cli_table_module(run):
