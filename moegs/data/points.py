@@ -492,29 +492,39 @@ def point_colors(
 
 
 # -- nearest-neighbour scales ------------------------------------------------------------------------
-def _knn_torch(points: Tensor, k: int, max_elements: int) -> Tensor:
+def knn_torch(points: Tensor, k: int, first: int = 0, max_elements: int = 1 << 24) -> tuple[Tensor, Tensor]:
+    """Squared distances (ascending) and indices ``[P - first, k]`` of the ``k`` nearest other points of
+    the points ``first..P-1`` of ``points [P, D]``, by exact sums of squared differences over all the points
+    (blocks of at most ``max_elements`` differences), on their device."""
     P, D = points.shape
     rows = max(1, max_elements // max(P * D, 1))
-    out = torch.empty(P, k, dtype=points.dtype, device=points.device)
-    for s in range(0, P, rows):
+    dist = torch.empty(P - first, k, dtype=points.dtype, device=points.device)
+    index = torch.empty(P - first, k, dtype=torch.long, device=points.device)
+    for s in range(first, P, rows):
         e = min(P, s + rows)
         d2 = (points[s:e, None, :] - points[None, :, :]).square().sum(-1)  # exact squares: no sqrt
         d2[torch.arange(e - s, device=points.device), torch.arange(s, e, device=points.device)] = float("inf")
-        out[s:e] = d2.topk(k, dim=1, largest=False).values
-    return out
+        dist[s - first : e - first], index[s - first : e - first] = d2.topk(k, dim=1, largest=False)
+    return dist, index
 
 
-def _knn_kdtree(points: Tensor, k: int) -> Tensor:
+def _knn_kdtree(points: Tensor, k: int, first: int = 0) -> Tensor:
     from scipy.spatial import cKDTree
 
     p = points.detach().cpu().to(torch.float64).numpy()
-    d, _ = cKDTree(p).query(p, k=k + 1)
-    d = np.asarray(d).reshape(p.shape[0], k + 1)[:, 1:]  # drop one zero (the point itself)
+    d, _ = cKDTree(p).query(p[first:], k=k + 1)
+    d = np.asarray(d).reshape(p.shape[0] - first, k + 1)[:, 1:]  # drop one zero (the point itself)
     return torch.from_numpy(d**2).to(points.dtype)
 
 
 def knn_mean_distance(
-    points: Tensor, k: int = 3, *, squared: bool = False, method: str = "auto", max_elements: int = 1 << 24
+    points: Tensor,
+    k: int = 3,
+    *,
+    squared: bool = False,
+    method: str = "auto",
+    max_elements: int = 1 << 24,
+    last: int | None = None,
 ) -> Tensor:
     """Mean distance of every point to its ``k`` nearest OTHER points.
 
@@ -528,8 +538,10 @@ def knn_mean_distance(
             (exact, scipy ``cKDTree`` on CPU, much faster for large P) or ``"auto"`` (kdtree on CPU when
             scipy is importable and P > 4096, else torch).
         max_elements: size of one block of coordinate differences for the torch path (memory bound).
+        last: only the last ``last`` points' distances (to all the points; the same values as the full
+            answer's last rows); None: every point's.
     Returns:
-        ``[P]`` with the dtype and device of ``points``; zeros when ``P < 2``.
+        ``[P]`` (``[last]``) with the dtype and device of ``points``; zeros when ``P < 2``.
     """
     if points.ndim != 2:
         raise ValueError(f"knn_mean_distance: points must be [P, D], got {list(points.shape)}")
@@ -538,8 +550,9 @@ def knn_mean_distance(
     if method not in ("auto", "torch", "kdtree"):
         raise ValueError(f"knn_mean_distance: method must be 'auto', 'torch' or 'kdtree', got {method!r}")
     P = points.shape[0]
+    first = P - min(P, last) if last is not None else 0
     if P < 2:
-        return torch.zeros(P, dtype=points.dtype, device=points.device)
+        return torch.zeros(P - first, dtype=points.dtype, device=points.device)
     k_eff = min(k, P - 1)
     if method == "auto":
         method = "torch"
@@ -550,8 +563,10 @@ def knn_mean_distance(
                 method = "kdtree"
             except ImportError:
                 pass
-    d2 = _knn_kdtree(points, k_eff) if method == "kdtree" else _knn_torch(points, k_eff, max_elements)
-    d2 = d2.to(points.device)
+    if method == "kdtree":
+        d2 = _knn_kdtree(points, k_eff, first).to(points.device)
+    else:
+        d2 = knn_torch(points, k_eff, first, max_elements)[0]
     return d2.mean(1) if squared else d2.sqrt().mean(1)
 
 

@@ -34,6 +34,7 @@ import torch
 from torch import Tensor, nn
 
 from moegs.camera import Camera
+from moegs.data.points import knn_torch
 from moegs.data.scene import Scene, View
 from moegs.experts.base import (
     QUICK_ITERATIONS,
@@ -64,7 +65,9 @@ def consecutive_pairs(count: int, frames: int, batch_size: int, generator: torch
     draw and ``2f + 1`` of every draw, modulo ``frames`` (``scene.maxtime``, the scene's frame count,
     e.g. 207 in ``arguments/hypernerf/vrig-3dprinter.py:10``): ``2 max(B // 2, 1)`` indices. With one
     training image per frame (HyperNeRF vrig) the two counts agree."""
-    draws = torch.randint(math.ceil(count / 2), (max(batch_size // 2, 1),), generator=generator).tolist()
+    draws = torch.randint(
+        math.ceil(count / 2), (max(batch_size // 2, 1),), generator=generator, device="cpu"
+    ).tolist()
     return [2 * f % frames for f in draws] + [(2 * f + 1) % frames for f in draws]
 
 
@@ -113,7 +116,11 @@ def ramp(step: int, start: int, length: int) -> float:
 
 
 def knn(points: Tensor, k: int) -> tuple[Tensor, Tensor]:
-    """The ``k`` nearest other points of each point (KD-tree, as open3d ``KDTreeFlann`` in E-D3DGS).
+    """The ``k`` nearest other points of each point (as open3d ``KDTreeFlann`` in E-D3DGS).
+
+    On the CPU a KD-tree in float64 (scipy); elsewhere exact sums of squared differences on the points'
+    device (``moegs.data.points.knn_torch``), which round differently and may order ties otherwise, so the
+    CPU keeps the KD-tree and its results.
 
     Args:
         points: ``[N, 3]``.
@@ -121,16 +128,17 @@ def knn(points: Tensor, k: int) -> tuple[Tensor, Tensor]:
     Returns:
         squared distances ``[N, k']`` and indices ``[N, k']`` (int64), ``k' = min(k, N - 1)``.
     """
-    from scipy.spatial import cKDTree
-
     n = points.shape[0]
     k = min(k, n - 1)
     if k < 1:
         raise ValueError(f"knn needs at least 2 points, got {n}")
-    p = points.detach().cpu().double().numpy()
+    if points.device.type != "cpu":
+        return knn_torch(points.detach(), k)
+    from scipy.spatial import cKDTree
+
+    p = points.detach().double().numpy()
     dist, idx = cKDTree(p).query(p, k=k + 1)
-    dist = torch.from_numpy(dist[:, 1:] ** 2).to(points.dtype)
-    return dist.to(points.device), torch.from_numpy(idx[:, 1:]).long().to(points.device)
+    return torch.from_numpy(dist[:, 1:] ** 2).to(points.dtype), torch.from_numpy(idx[:, 1:]).long()
 
 
 def embedding_smoothness(embedding: Tensor, neighbours: Tensor, weights: Tensor) -> Tensor:
@@ -478,8 +486,9 @@ class ED3DGSConfig(ExpertConfig):
 class _ViewTable(nn.Module):
     """E-D3DGS's multi-view sampling state: far-apart consecutive cameras and error-guided frames.
 
-    Buffers (saved with the expert so that a resumed run samples the same way): ``errors [C, F]``
-    (last L1 of each camera x frame, 100 until seen), ``last_camera``, ``kept_frame`` (-1 = none).
+    Saved with the expert so that a resumed run samples the same way: the buffer ``errors [C, F]`` (last L1
+    of each camera x frame, 100 until seen) and, as extra state, ``last_camera`` and ``kept_frame`` (-1 =
+    none). The camera bookkeeping is on the host: a step reads the device only to draw a frame by error.
     """
 
     def __init__(self, views: list[View]) -> None:
@@ -495,34 +504,40 @@ class _ViewTable(nn.Module):
         for v in views:
             centres.setdefault(v.camera.camera_id, v.camera.center)
         c = torch.stack([centres[k] for k in cams])
-        self.distances = torch.cdist(c, c)  # [C, C]
-        unique = torch.unique(self.distances)
+        distances = torch.cdist(c, c)  # [C, C]
+        unique = torch.unique(distances)
         self.min_distance = float(unique[int(unique.numel() * 0.5)])  # median unique pair distance
+        self.far = []  # per camera: the others at least the median pair distance away (else all cameras)
+        for last in range(len(cams)):
+            far = (distances[last] >= self.min_distance).nonzero(as_tuple=True)[0]
+            far = far[far != last]
+            self.far.append(far.tolist() if far.numel() else list(range(len(cams))))
         self.register_buffer("errors", torch.full((len(cams), len(frames)), 100.0))
-        self.register_buffer("last_camera", torch.zeros((), dtype=torch.long))
-        self.register_buffer("kept_frame", torch.full((), -1, dtype=torch.long))
+        self.last_camera, self.kept_frame = 0, -1
+
+    def get_extra_state(self) -> dict:
+        return {"last_camera": self.last_camera, "kept_frame": self.kept_frame}
+
+    def set_extra_state(self, state: dict) -> None:
+        self.last_camera, self.kept_frame = state["last_camera"], state["kept_frame"]
 
     def _camera(self, generator: torch.Generator) -> int:
         """A camera at least the median pair distance from the previous one (E-D3DGS ``sample_camera``)."""
-        last = int(self.last_camera)
-        far = (self.distances[last] >= self.min_distance).nonzero(as_tuple=True)[0]
-        far = far[far != last]
-        pool = far if far.numel() else torch.arange(self.distances.shape[0])
-        cam = int(pool[torch.randint(pool.numel(), (1,), generator=generator)])
-        self.last_camera.fill_(cam)
-        return cam
+        pool = self.far[self.last_camera]
+        self.last_camera = pool[int(torch.randint(len(pool), (1,), generator=generator, device="cpu"))]
+        return self.last_camera
 
     def _frame(self, by_error: bool, generator: torch.Generator) -> int:
         """Uniform, or ∝ the min-max normalised per-frame error summed over cameras (``get_idx_by_error``)."""
-        if int(self.kept_frame) >= 0:
-            return int(self.kept_frame)
+        if self.kept_frame >= 0:
+            return self.kept_frame
         num = self.errors.shape[1]
         if not by_error:
-            return int(torch.randint(num, (1,), generator=generator))
-        e = self.errors.sum(0)
+            return int(torch.randint(num, (1,), generator=generator, device="cpu"))
+        e = self.errors.sum(0).cpu()  # the draw runs on the sampler's generator, on the host
         e = (e - e.min()) / (e.max() - e.min()).clamp_min(1e-12)
         if e.sum() <= 0:
-            return int(torch.randint(num, (1,), generator=generator))
+            return int(torch.randint(num, (1,), generator=generator, device="cpu"))
         return int(torch.multinomial(e / e.sum(), 1, generator=generator))
 
     def sample(self, step: int, batch: int, config: ED3DGSConfig, generator: torch.Generator) -> list[int]:
@@ -533,11 +548,10 @@ class _ViewTable(nn.Module):
             if (cam, frame) not in self.index:  # camera missing at that frame: any camera of the frame
                 cam = next(c for (c, f) in self.index if f == frame)
             picks.append(self.index[(cam, frame)])
-        keep = ssim_step(step, config)
-        self.kept_frame.fill_(frame if keep else -1)
+        self.kept_frame = frame if ssim_step(step, config) else -1
         return picks
 
-    def record(self, camera: Camera, error: float) -> None:
+    def record(self, camera: Camera, error: Tensor | float) -> None:
         self.errors[self.cam_pos[camera.camera_id], self.frame_pos[camera.frame]] = error
 
 
@@ -568,10 +582,19 @@ class ED3DGSExpert(Expert):
         super().__init__(config, splats, fields)
         self.spatial_lr_scale = spatial_lr_scale
         self.views = views
-        self.register_buffer("step", torch.zeros((), dtype=torch.long))
-        self._knn: tuple[int, Tensor, Tensor] | None = (
-            None  # (N, neighbours, weights), rebuilt when N changes
-        )
+        self.step = 0  # the training step (``on_step``; a resume replays it)
+        # the smoothness neighbours: found for the means of the last change of N, which are checkpointed
+        self.register_buffer("knn_means", None, persistent=False)  # [N, 3]
+        self.register_buffer("knn_index", None, persistent=False)  # [N, k]
+        self.register_buffer("knn_weights", None, persistent=False)  # [N, k]
+
+    def get_extra_state(self) -> dict:
+        return {"knn_means": self.knn_means}
+
+    def set_extra_state(self, state: dict) -> None:
+        means = state["knn_means"]
+        self.knn_means = None if means is None else means.to(self.splats["means"].device)
+        self.knn_index = self.knn_weights = None  # found again for those means
 
     @classmethod
     def from_scene(cls, scene: Scene, config: ED3DGSConfig) -> ED3DGSExpert:
@@ -588,7 +611,7 @@ class ED3DGSExpert(Expert):
 
     # -- training hooks ---------------------------------------------------------------------------------
     def on_step(self, step: int) -> bool:
-        self.step.fill_(step)
+        self.step = step
         return False
 
     def select_views(
@@ -607,7 +630,7 @@ class ED3DGSExpert(Expert):
         """Record the view's L1 for error-guided sampling; D-SSIM ``λ (1 - SSIM) / 2`` on SSIM iterations."""
         if self.views is None:
             return None
-        self.views.record(view.camera, float(l1(rgb.detach(), target)))
+        self.views.record(view.camera, l1(rgb.detach(), target))
         c = self.config
         extra_every_10 = (
             c.multiview_ssim_iters == 0 and step >= c.random_until and step % 2 == 0 and step % 10 == 0
@@ -619,7 +642,7 @@ class ED3DGSExpert(Expert):
     # -- deformation -----------------------------------------------------------------------------------
     def knots(self) -> tuple[int, int]:
         """(coarse, fine) knot counts now: the schedule while training, max at test."""
-        c, step = self.config, int(self.step)
+        c, step = self.config, self.step
         fine = (
             knots_at(step, c.min_embeddings, c.max_embeddings, c.coarse_to_fine_until)
             if self.training
@@ -629,7 +652,7 @@ class ED3DGSExpert(Expert):
 
     def coefficients(self) -> dict[str, float]:
         """Anneal factor of each deformed attribute at the current step (1 without ``use_anneal``)."""
-        c, step = self.config, int(self.step)
+        c, step = self.config, self.step
         if not c.use_anneal:
             return dict.fromkeys(DEFORMABLE, 1.0)
         a = ramp(step, 0, c.anneal_steps)
@@ -666,18 +689,21 @@ class ED3DGSExpert(Expert):
         sh = raw.pop("sh")
         raw.update(sh0=sh[:, :1], shN=sh[:, 1:])
         overrides = {"quats": raw["quats"]} if raw_quats else {}
-        degree = active_sh_degree(int(self.step), self.config.sh_degree, self.config.train.sh_degree_interval)
+        degree = active_sh_degree(self.step, self.config.sh_degree, self.config.train.sh_degree_interval)
         return activate(raw, degree, **overrides)
 
     def regularization(self, step: int, frame: GaussianFrame | None = None) -> Tensor:
         c, s = self.config, self.splats
         loss = c.opacity_reg * torch.sigmoid(s["opacities"].mean())
         if c.smoothness_reg > 0:
-            n = s["means"].shape[0]
-            if self._knn is None or self._knn[0] != n:
-                d2, idx = knn(s["means"].detach(), c.smoothness_neighbours)
-                self._knn = (n, idx, torch.exp(-c.smoothness_falloff * d2))
-            loss = loss + c.smoothness_reg * embedding_smoothness(s["embedding"], self._knn[1], self._knn[2])
+            if self.knn_means is None or self.knn_means.shape[0] != s["means"].shape[0]:
+                self.knn_means, self.knn_index = s["means"].detach().clone(), None
+            if self.knn_index is None:
+                d2, self.knn_index = knn(self.knn_means, c.smoothness_neighbours)
+                self.knn_weights = torch.exp(-c.smoothness_falloff * d2)
+            loss = loss + c.smoothness_reg * embedding_smoothness(
+                s["embedding"], self.knn_index, self.knn_weights
+            )
         if c.temporal_tv > 0:
             loss = loss + c.temporal_tv * buggy_temporal_tv(self.fields.temporal)
         return loss

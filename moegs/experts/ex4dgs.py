@@ -55,6 +55,7 @@ from moegs.metrics.ssim import ssim_map
 from moegs.render import RenderOutput, rasterize
 from moegs.render.projection import eval_sh, quat_to_rotmat, view_dirs
 from moegs.train.config import TrainConfig
+from moegs.train.set_optim import row_sets
 from moegs.train.strategy import NEVER, ADCStrategy, Strategy, ops
 
 STATS = ("err_sum", "ssim_sum", "err_count", "err_min", "err_min_time", "radius_min")
@@ -428,6 +429,7 @@ class Ex4DGSStrategy(ADCStrategy):
     @torch.no_grad()
     def _split(self, params, optimizers, mask: Tensor) -> None:
         index = mask.nonzero(as_tuple=True)[0]
+        keep = torch.nonzero_static(~mask, size=mask.shape[0] - index.shape[0])[:, 0]
         dynamic = params["dynamic"][index]
         scales = torch.exp(params["scales"][index])  # [M, 3]
         spread = torch.where(dynamic, 2.0, 1.0)[:, None] * scales  # dynamic: std 2 s
@@ -457,13 +459,13 @@ class Ex4DGSStrategy(ADCStrategy):
                     self.split_samples, 1
                 )
             elif key in FRESH:
-                kids = torch.full((self.split_samples * len(index),), FRESH[key]).to(v)
+                kids = v.new_full((self.split_samples * len(index),), FRESH[key])
             else:
                 kids = parents.repeat(self.split_samples, *([1] * (v.ndim - 1)))
-            return torch.cat([v[~mask], kids])
+            return torch.cat([v[keep], kids])
 
         def moments(key: str, v: Tensor) -> Tensor:
-            return torch.cat([v[~mask], v.new_zeros((self.split_samples * len(index), *v.shape[1:]))])
+            return torch.cat([v[keep], v.new_zeros((self.split_samples * len(index), *v.shape[1:]))])
 
         ops.update_params(params, optimizers, children, moments)
 
@@ -586,18 +588,21 @@ class Ex4DGSExpert(Expert):
         self.random_background = (
             config.random_background if config.random_background is not None else multiview
         )
-        self.register_buffer("duration", torch.tensor(float(min(config.start_duration, num_frames))))
-        self.register_buffer("need_extract", torch.tensor(True))  # arms the next make_dynamic_interval step
-        self.register_buffer("view_stack", torch.zeros(num_views, dtype=torch.long))  # shuffled pass
-        self.register_buffer("pass_left", torch.tensor(0))  # views of view_stack[:pass_left] left to draw
-        self.register_buffer("convert_newest", torch.tensor(False))  # ``mark_last``
-        self.register_buffer("keyframes", torch.tensor(0))  # ``keyframe_num``: 0 until the first conversion
+        self.num_views = num_views
+        # the schedule's state, on the host (``get_extra_state`` checkpoints it)
+        self.duration = float(min(config.start_duration, num_frames))  # the sampling length, in frames
+        self.need_extract = True  # arms the next make_dynamic_interval step
+        self.view_stack: list[int] = []  # the shuffled pass: views of view_stack[:pass_left] left to draw
+        self.pass_left = 0
+        self.convert_newest = False  # ``mark_last``
+        self.keyframes = 0  # ``keyframe_num``: 0 until the first conversion
         self.register_buffer("bin_errors", torch.zeros(math.ceil(num_frames / config.interval), 2))
         self.active_sh_degree = 0
         self._probe: tuple[Tensor, Tensor, float] | None = None  # (probe image, per-Gaussian probe, frame)
-        self._view_frames: tuple[list[View], Tensor] | None = None  # (views, each one's frame)
+        self._view_frames: tuple[list[View], list[int]] | None = None  # (views, each one's frame)
         self._step_view: View | None = None  # the step's first view: the interval conversion's
         self._armed_view: View | None = None  # ``mark_extract``: the armed conversion's, after the update
+        self._backend = "auto"  # the training renders' rasterizer, which the conversions' renders use too
 
     @classmethod
     def from_scene(cls, scene: Scene, config: Ex4DGSConfig) -> Ex4DGSExpert:
@@ -642,6 +647,15 @@ class Ex4DGSExpert(Expert):
             len(scene.train),
         )
 
+    _SCHEDULE = ("duration", "need_extract", "view_stack", "pass_left", "convert_newest", "keyframes")
+
+    def get_extra_state(self) -> dict:
+        return {name: getattr(self, name) for name in self._SCHEDULE}
+
+    def set_extra_state(self, state: dict) -> None:
+        for name in self._SCHEDULE:
+            setattr(self, name, state[name])
+
     # -- time ---------------------------------------------------------------------------------------------
     def frame_index(self, t: float) -> float:
         """Integer-frame time of normalised scene time ``t`` (Ex4DGS ``timestamp = j - start``)."""
@@ -665,7 +679,7 @@ class Ex4DGSExpert(Expert):
         means = s["means"] + s["drift"] * f / self.model_duration()
         quats = nn.functional.normalize(s["quats"], dim=-1)
         opacities = torch.sigmoid(s["opacities"])
-        idx = s["dynamic"].nonzero(as_tuple=True)[0]
+        idx = row_sets(s["dynamic"]).second
         if idx.numel():
             k, delta = keyframe_position(f, c.shift, c.interval)
             key_q = s["motion_quats"][idx]
@@ -703,6 +717,7 @@ class Ex4DGSExpert(Expert):
         camera = clip_camera(camera, self.config.near, self.config.far)
         if not self.training:
             return super().render(camera, background, backend, return_stats)
+        self._backend = backend
         frame = self.frame(camera.time, camera)
         if self.random_background:
             background = torch.rand(3, device=frame.device)
@@ -783,21 +798,21 @@ class Ex4DGSExpert(Expert):
         """
         frames = self._frames(views)
         picked = [self._pop(step, frames, generator) for _ in range(batch_size)]
-        newest = [i for i in picked if int(frames[i]) >= float(self.duration) - self.config.interval]
+        newest = [i for i in picked if frames[i] >= self.duration - self.config.interval]
         self._step_view, self._armed_view = views[picked[0]], None
-        if bool(self.convert_newest) and newest:
+        if self.convert_newest and newest:
             self._armed_view = views[newest[0]]
-            self.convert_newest.fill_(False)
+            self.convert_newest = False
         return picked
 
-    def _frames(self, views: list[View]) -> Tensor:
-        """Each training view's frame index ``[V]`` (views sit on frames); computed once per view list."""
-        if len(views) != self.view_stack.numel():
-            built = self.view_stack.numel()
-            raise ValueError(f"Ex4DGS was built for {built} training views, select_views got {len(views)}")
+    def _frames(self, views: list[View]) -> list[int]:
+        """Each training view's frame index (views sit on frames); computed once per view list."""
+        if len(views) != self.num_views:
+            raise ValueError(
+                f"Ex4DGS was built for {self.num_views} training views, select_views got {len(views)}"
+            )
         if self._view_frames is None or self._view_frames[0] is not views:
-            frames = torch.tensor([round(self.frame_index(v.camera.time)) for v in views])
-            self._view_frames = (views, frames)
+            self._view_frames = (views, [round(self.frame_index(v.camera.time)) for v in views])
         return self._view_frames[1]
 
     # -- schedule events, run by the bound strategy (``Ex4DGSStrategy.bind``) -----------------------------
@@ -826,12 +841,10 @@ class Ex4DGSExpert(Expert):
         skips the last step's update and this with it: in the original, that step's growth or conversion
         comes after the model is saved."""
         c = self.config
-        if step > c.grow_from and step % c.grow_every == c.make_dynamic_interval and bool(self.need_extract):
-            self.convert_newest.fill_(True)
-            self.need_extract.fill_(False)
+        if step > c.grow_from and step % c.grow_every == c.make_dynamic_interval and self.need_extract:
+            self.convert_newest, self.need_extract = True, False
         if step > max(c.grow_from, c.grow_every) and step % c.grow_every == 0 and self._grow(optimizers):
-            self.convert_newest.fill_(True)
-            self.need_extract.fill_(True)
+            self.convert_newest, self.need_extract = True, True
         armed, self._armed_view = self._armed_view, None
         if armed is not None:
             self._restart(optimizers, rows=self.convert(armed.camera))
@@ -848,18 +861,18 @@ class Ex4DGSExpert(Expert):
             keys=keys,
         )
 
-    def _pop(self, step: int, frames: Tensor, generator: torch.Generator) -> int:
-        """The next view of the stack (``frames [V]``: each view's frame); refills it when empty."""
-        if int(self.pass_left) == 0:
-            eligible = (frames <= self.duration).nonzero(as_tuple=True)[0]
-            n = eligible.numel()
-            self.view_stack[:n] = eligible[torch.randperm(n, generator=generator)]
-            self.pass_left.fill_(n)
+    def _pop(self, step: int, frames: list[int], generator: torch.Generator) -> int:
+        """The next view of the stack (``frames``: each view's frame); refills it when empty."""
+        if self.pass_left == 0:
+            eligible = [i for i, frame in enumerate(frames) if frame <= self.duration]
+            order = torch.randperm(len(eligible), generator=generator, device="cpu").tolist()
+            self.view_stack = [eligible[i] for i in order]
+            self.pass_left = len(eligible)
             strategy = self.config.strategy
             if isinstance(strategy, Ex4DGSStrategy) and step < self.config.train.iterations:  # train.py:237
                 strategy.start_pass(step)
-        self.pass_left.sub_(1)
-        return int(self.view_stack[int(self.pass_left)])
+        self.pass_left -= 1
+        return self.view_stack[self.pass_left]
 
     def _extracts(self, step: int) -> bool:
         """Whether ``step`` runs the ``extracton_interval`` conversion (``train.py:217, 228-232``: the
@@ -885,13 +898,13 @@ class Ex4DGSExpert(Expert):
         opacities restart their moments (``replace_tensor_to_optimizer``)."""
         c, s = self.config, self.splats
         length = min(self.num_frames + c.shift, int(self.duration) + c.interval)
-        if length <= int(self.duration):
+        if length <= self.duration:
             return False
         old = self.model_duration()
-        self.duration.fill_(float(length))
+        self.duration = float(length)
         new = self.model_duration()
-        have, need = int(self.keyframes), grown_keyframe_count(new, c.shift, c.time_pad, c.interval)
-        idx = s["dynamic"].nonzero(as_tuple=True)[0]
+        have, need = self.keyframes, grown_keyframe_count(new, c.shift, c.time_pad, c.interval)
+        idx = row_sets(s["dynamic"]).second
         if not idx.numel() or need <= have:
             return False
         average = min(have - 2, 4)
@@ -902,7 +915,7 @@ class Ex4DGSExpert(Expert):
         widths[:, 1].masked_fill_(near_end, 1.0)
         s["widths"].data[idx] = widths
         s["centers"].data[idx] = centers.clamp_max((c.shift + old - 1) / c.interval)
-        self.keyframes.fill_(need)
+        self.keyframes = need
         self._restart(optimizers, keys=["motion_means", "motion_quats", "centers", "widths"])
         return True
 
@@ -912,14 +925,14 @@ class Ex4DGSExpert(Expert):
         that ``camera`` sees drift most (``_drifting``); returns their indices ``[M]``. Whatever it
         converts, the dynamic set's interval statistics restart (``c_gaussian_model.py:1213-1220``)."""
         c, s = self.config, self.splats
-        duration = max(float(self.duration), float(c.interval))
-        if int(self.keyframes) == 0:  # set by the first conversion, whatever it converts; growths extend it
-            self.keyframes.fill_(keyframe_count(duration, c.shift, c.interval))
+        duration = max(self.duration, float(c.interval))
+        if self.keyframes == 0:  # set by the first conversion, whatever it converts; growths extend it
+            self.keyframes = keyframe_count(duration, c.shift, c.interval)
         idx = self._drifting(camera)
         if idx.numel():
             self._make_dynamic(idx, duration)
         for key in RESET_AT_DENSIFY:
-            s[key].data[s["dynamic"]] = FRESH[key]
+            s[key].data.masked_fill_(s["dynamic"], FRESH[key])
         return idx
 
     def _drifting(self, camera: Camera) -> Tensor:
@@ -933,6 +946,7 @@ class Ex4DGSExpert(Expert):
             antialiased=True,
             return_depth=False,
             return_stats=True,
+            backend=self._backend,
         )
         static = ~s["dynamic"] & out.info["visible"]
         if static.sum() < 2:
@@ -947,7 +961,7 @@ class Ex4DGSExpert(Expert):
     def _make_dynamic(self, idx: Tensor, duration: float) -> None:
         """Keyframes from the drift, temporal opacity from the back-tracked best frame, for ``idx [M]``."""
         c, s = self.config, self.splats
-        total, valid = s["motion_means"].shape[1], int(self.keyframes)
+        total, valid = s["motion_means"].shape[1], self.keyframes
         keys = initial_keyframes(s["means"][idx], s["drift"][idx], c.interval, duration, valid)
         keys = torch.cat([keys, keys.new_zeros(len(idx), total - valid, 3)], dim=1)  # filled by extrapolation
         t = s["err_min_time"][idx]
@@ -974,10 +988,10 @@ class Ex4DGSExpert(Expert):
         keyframes of that end of the trained range, clamp the centres inside it, floor widths at 0.5;
         both restart their moments (``replace_tensor_to_optimizer``)."""
         c, s = self.config, self.splats
-        idx = s["dynamic"].nonzero(as_tuple=True)[0]
+        idx = row_sets(s["dynamic"]).second
         if not idx.numel():
             return
-        lo, hi = c.shift / c.interval + 0.2, (float(self.duration) + c.shift) / c.interval - 0.2
+        lo, hi = c.shift / c.interval + 0.2, (self.duration + c.shift) / c.interval - 0.2
         centers, widths = s["centers"].data[idx], s["widths"].data[idx]
         new = widths.clone()
         new[:, 1] = torch.where((centers > hi).any(dim=1), widths[:, 1].clamp_min(1) * 2, widths[:, 1])
@@ -991,11 +1005,11 @@ class Ex4DGSExpert(Expert):
         loss = s["means"].new_zeros(())
         if step <= c.reg_from:
             return loss
-        static, dynamic = ~s["dynamic"], s["dynamic"]
-        if static.any():
+        static, dynamic = row_sets(s["dynamic"])
+        if static.numel():
             loss = loss + c.static_reg * torch.log(s["drift"][static].norm(dim=-1) + 0.001).mean()
-        if dynamic.any():
-            keys = s["motion_means"][dynamic][:, : int(self.keyframes)]  # train.py:159-161: K columns
+        if dynamic.numel():
+            keys = s["motion_means"][dynamic][:, : self.keyframes]  # train.py:159-161: K columns
             loss = loss + c.motion_reg * (keys[:, :1] - keys[:, 1:]).norm(dim=-1).mean()
         return loss
 
@@ -1022,7 +1036,8 @@ class Ex4DGSExpert(Expert):
         return [replace(g, second_lr=own_rates[g.name]) if g.name in own_rates else g for g in groups]
 
     def _dynamic_rows(self) -> Tensor:
-        """The ``dynamic`` flags ``[N]`` of the current splats (densification replaces the tensor)."""
+        """The ``dynamic`` flags ``[N]`` of the current splats (densification replaces the tensor; a
+        conversion writes it in place, so ``row_sets`` sees both)."""
         return self.splats["dynamic"]
 
     def strategy(self) -> Strategy:

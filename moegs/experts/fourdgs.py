@@ -112,10 +112,11 @@ class FourDGSStrategy(ADCStrategy):
         candidates = grads >= self.grad_threshold
         clone, to_split = candidates & small, candidates & ~small
         ops.duplicate(params, optimizers, clone)
-        to_split = torch.cat([to_split, to_split.new_zeros(int(clone.sum()))])
+        cloned = int(clone.sum())
+        to_split = torch.cat([to_split, to_split.new_zeros(cloned)])
         ops.split(params, optimizers, to_split, self.split_samples, self.split_scale_divisor)
         self._reset_stats(state, params["means"].shape[0], params["means"].detach())
-        state["last_refine"] = {"clone": int(clone.sum()), "split": int(to_split.sum()), "prune": 0}
+        state["last_refine"] = {"clone": cloned, "split": int(to_split.sum()), "prune": 0}
 
     @torch.no_grad()
     def _prune(self, params, optimizers, state: dict, stage_step: int) -> None:

@@ -83,6 +83,10 @@ class MCMCExpert(StaticExpert):
     ) -> None:
         super().__init__(config, splats, spatial_lr_scale)
         self.register_buffer("key_times", times)  # [M]
+        # host answers kept for the tensors' versions, so a step reads nothing back: the model of each time,
+        # and the rows of each model
+        self._models: tuple[int, dict[float, int]] = (-1, {})
+        self._rows: tuple[Tensor | None, tuple[int, int], dict[int, Tensor]] = (None, (-1, 0), {})
 
     @staticmethod
     def _model_points(scene: Scene, config: MCMCConfig, key: float) -> PointCloud:
@@ -125,11 +129,23 @@ class MCMCExpert(StaticExpert):
 
     def model_index(self, t: float) -> int:
         """Index of the model whose key time is nearest to ``t``."""
-        return int((self.key_times - t).abs().argmin())
+        version, models = self._models
+        if version != self.key_times._version:
+            version, models = self._models = (self.key_times._version, {})
+        if t not in models:
+            models[t] = int((self.key_times - t).abs().argmin())
+        return models[t]
 
     def frame_rows(self, t: float) -> Tensor:
-        """Rows of the model nearest to ``t``."""
-        return (self.splats[MODEL_KEY] == self.model_index(t)).nonzero(as_tuple=True)[0]
+        """Rows of the model nearest to ``t`` (found again when refinement replaces the model index)."""
+        ids = self.splats[MODEL_KEY]
+        held, key, rows = self._rows
+        if held is not ids or key != (ids._version, ids.data_ptr()):  # replaced, written or moved
+            held, key, rows = self._rows = (ids, (ids._version, ids.data_ptr()), {})
+        m = self.model_index(t)
+        if m not in rows:
+            rows[m] = (ids == m).nonzero(as_tuple=True)[0]
+        return rows[m]
 
     def frame(self, t: float, camera: Camera | None = None) -> GaussianFrame:
         members = self.frame_rows(t)

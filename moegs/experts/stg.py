@@ -330,13 +330,15 @@ class STGStrategy(ADCStrategy):
         clone, to_split = candidates & small, candidates & ~small
         n = params["means"].shape[0]
         ops.duplicate(params, optimizers, clone)
-        to_split = torch.cat([to_split, to_split.new_zeros(int(clone.sum()))])
+        cloned = int(clone.sum())
+        to_split = torch.cat([to_split, to_split.new_zeros(cloned)])
         ops.split(params, optimizers, to_split, self.split_samples, self.split_scale_divisor)
-        new = params["means"].shape[0] - (n - int(to_split.sum()))  # clones and children sit at the end
+        split = int(to_split.sum())
+        new = params["means"].shape[0] - (n - split)  # clones and children sit at the end
         if new:
             centres = params[self.time_key]
             centres.data[-new:] = torch.rand(new, device=centres.device, dtype=centres.dtype)
-        state["last_refine"] = {"clone": int(clone.sum()), "split": int(to_split.sum())}
+        state["last_refine"] = {"clone": cloned, "split": split}
 
     def _remove(self, params, optimizers, state: dict, prune: Tensor) -> None:
         """Remove ``prune`` rows and keep the ω mask aligned."""
@@ -375,8 +377,10 @@ class STGStrategy(ADCStrategy):
         if step == self.guided_from:
             g["phase"] = "collect"
         if g["phase"] == "collect":
-            for v in views:
-                g["ssim"].setdefault(str(v["camera"].camera_id), stg_guided.view_ssim(v["rgb"], v["target"]))
+            for v in views:  # each camera's first render
+                key = str(v["camera"].camera_id)
+                if key not in g["ssim"]:
+                    g["ssim"][key] = stg_guided.view_ssim(v["rgb"], v["target"])
             if len(g["ssim"]) >= len(state["far_depth"]):
                 worst = sorted((s, c) for c, s in g["ssim"].items() if s < self.guided_select_ssim)
                 picked = [c for _, c in worst[: self.guided_events]]
@@ -444,8 +448,8 @@ def _point_times(points: PointCloud, window: tuple[float, float], seed: int) -> 
     uniform random in [0, 1) (seeded; the scenes here have no per-frame SfM)."""
     if points.times is not None:
         return (points.times.to(torch.float32) - window[0]) / (window[1] - window[0])
-    g = torch.Generator().manual_seed(seed)
-    return torch.rand(len(points), generator=g)
+    g = torch.Generator(device="cpu").manual_seed(seed)
+    return torch.rand(len(points), generator=g, device="cpu")
 
 
 class STGExpert(Expert):
@@ -547,9 +551,9 @@ class STGExpert(Expert):
         for i, v in enumerate(views):
             by_time.setdefault(v.camera.time, []).append(i)
         times = sorted(by_time)
-        members = by_time[times[int(torch.randint(len(times), (1,), generator=generator))]]
+        members = by_time[times[int(torch.randint(len(times), (1,), generator=generator, device="cpu"))]]
         k = min(self.config.views_per_step, len(members))
-        order = torch.randperm(len(members), generator=generator)[:k]
+        order = torch.randperm(len(members), generator=generator, device="cpu")[:k]
         return [members[i] for i in order.tolist()]
 
     def param_groups(self) -> list[ParamGroup]:

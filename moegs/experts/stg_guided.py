@@ -64,8 +64,8 @@ def error_pixels(rgb: Tensor, target: Tensor, quantile: float) -> Tensor:
     padded = torch.nn.functional.pad(bad, (0, pw - w, 0, ph - h))
     counts = padded.view(ph // PATCH, PATCH, pw // PATCH, PATCH).sum((1, 3))  # [ph/16, pw/16]
     flagged = (counts > PATCH_FULL * PATCH * PATCH).repeat_interleave(PATCH, 0).repeat_interleave(PATCH, 1)
-    rows = torch.arange(ph)[:, None] % 2 == 1
-    cols = torch.arange(pw)[None, :] % 2 == 1
+    rows = torch.arange(ph, device=bad.device)[:, None] % 2 == 1
+    cols = torch.arange(pw, device=bad.device)[None, :] % 2 == 1
     keep = (flagged & (rows | cols))[:h, :w].clone()
     bh, bw = int(h * BORDER), int(w * BORDER)
     keep[:bh], keep[h - bh :], keep[:, :bw], keep[:, w - bw :] = False, False, False, False
@@ -75,15 +75,19 @@ def error_pixels(rgb: Tensor, target: Tensor, quantile: float) -> Tensor:
 @torch.no_grad()
 def pixel_points(camera: Camera, pixels: Tensor, depth: float, ratios: tuple[float, ...], g=None) -> Tensor:
     """World points ``[len(ratios) * P, 3]`` on the rays of ``pixels [P, 2]`` at camera z
-    ``(depth + depth / 10 (U - 0.5)) r`` for each ratio ``r`` (ratio-major order)."""
-    k = camera.K
+    ``(depth + depth / 10 (U - 0.5)) r`` for each ratio ``r`` (ratio-major order), on the pixels' device;
+    ``U`` from ``g`` (on its device), else from the global generator of the pixels' device."""
+    k = camera.K.to(pixels.device)
     v = pixels[:, 1].to(k.dtype) + 0.5
     u = pixels[:, 0].to(k.dtype) + 0.5
     rays = torch.stack([(v - k[0, 2]) / k[0, 0], (u - k[1, 2]) / k[1, 1], torch.ones_like(u)], -1)  # z = 1
-    c2w = torch.linalg.inv(camera.world_to_camera)
+    c2w = torch.linalg.inv(camera.world_to_camera.to(pixels.device))
     out = []
     for r in ratios:
-        z = (depth + depth / 10.0 * (torch.rand(len(pixels), generator=g, dtype=k.dtype) - 0.5)) * r
+        noise = torch.rand(
+            len(pixels), generator=g, dtype=k.dtype, device=k.device if g is None else g.device
+        )
+        z = (depth + depth / 10.0 * (noise.to(k) - 0.5)) * r
         cam = rays * z[:, None]
         out.append(cam @ c2w[:3, :3].T + c2w[:3, 3])
     return torch.cat(out)
@@ -96,18 +100,18 @@ def new_rows(params, points: Tensor, rgb: Tensor, trbf_scale: float) -> dict[str
     m = points.shape[0]
     like = params["means"]
     everything = torch.cat([like.detach(), points.to(like)])
-    d2 = knn_mean_distance(everything, 3, squared=True)[-m:].clamp_min(1e-7)
+    d2 = knn_mean_distance(everything, 3, squared=True, last=m).clamp_min(1e-7)  # the new points' only
     log_scale = torch.log(torch.sqrt(d2)).clamp(-10.0, 1.0)[:, None].repeat(1, 3)
     rgb = rgb.to(like)
     known = {
         "means": points.to(like),
         "scales": log_scale,
-        "quats": torch.tensor([1.0, 0.0, 0.0, 0.0]).to(like).repeat(m, 1),
-        "opacities": torch.full((m,), math.log(0.1 / 0.9)).to(like),
+        "quats": like.new_tensor([1.0, 0.0, 0.0, 0.0]).repeat(m, 1),
+        "opacities": like.new_full((m,), math.log(0.1 / 0.9)),
         "motion": like.new_zeros(m, 9),
         "omega": like.new_zeros(m, 4),
-        "trbf_center": torch.rand(m).to(like),
-        "trbf_scale": torch.full((m,), float(trbf_scale)).to(like),
+        "trbf_center": torch.rand(m, device=like.device).to(like),
+        "trbf_scale": like.new_full((m,), float(trbf_scale)),
         "features": torch.cat([rgb, torch.zeros_like(rgb)], 1),
         "features_t": like.new_zeros(m, 3),
         "rgb": rgb,

@@ -106,10 +106,14 @@ class HashGrid(nn.Module):
         self.register_buffer("resolutions", res_t, persistent=False)  # [L, D]
         self.register_buffer("strides", strides, persistent=False)  # [L, D]
         self.register_buffer("sizes", torch.tensor(sizes, dtype=torch.long), persistent=False)  # [L]
-        self.register_buffer("dense", res_t.prod(1) <= self.sizes, persistent=False)  # [L] bool
+        dense = res_t.prod(1) <= self.sizes
+        self.dense = tuple(dense.tolist())  # per level; decided on the host, so a call never reads the device
+        self.register_buffer("dense_mask", dense, persistent=False)  # [L] bool
         offsets = torch.cumsum(torch.tensor([0, *sizes], dtype=torch.long), 0)
         self.register_buffer("offsets", offsets, persistent=False)  # [L + 1]
         self.register_buffer("primes", torch.tensor(PRIMES[:input_dim], dtype=torch.long), persistent=False)
+        corners = [[(c >> d) & 1 for d in range(input_dim)] for c in range(2**input_dim)]
+        self.register_buffer("corners", torch.tensor(corners, dtype=torch.long), persistent=False)  # [2^D, D]
         self.embeddings = nn.Parameter(torch.empty(int(offsets[-1]), level_dim).uniform_(-1e-4, 1e-4))
 
     @property
@@ -119,13 +123,13 @@ class HashGrid(nn.Module):
     def level_index(self, cell: Tensor) -> Tensor:
         """Table row of the integer vertices ``cell [N, L, D]`` at each level: ``[N, L]`` in ``[0, T_l)``."""
         index = None
-        if bool(self.dense.any()):
+        if any(self.dense):
             index = (cell * self.strides).sum(-1)
-        if not bool(self.dense.all()):
+        if not all(self.dense):
             hashed = (cell[..., 0] * self.primes[0]) & UINT32_MASK
             for d in range(1, self.input_dim):
                 hashed = hashed ^ ((cell[..., d] * self.primes[d]) & UINT32_MASK)
-            index = hashed if index is None else torch.where(self.dense, index, hashed)
+            index = hashed if index is None else torch.where(self.dense_mask, index, hashed)
         return index % self.sizes
 
     def forward(self, u: Tensor) -> Tensor:
@@ -156,7 +160,7 @@ class HashGrid(nn.Module):
             weight = torch.stack(
                 [w_hi[..., d] if b else 1.0 - w_hi[..., d] for d, b in enumerate(bits)]
             ).prod(0)  # [N, L]
-            rows = self.level_index(cell + torch.tensor(bits, device=u.device)) + self.offsets[:-1]  # [N, L]
+            rows = self.level_index(cell + self.corners[corner]) + self.offsets[:-1]  # [N, L]
             # index_select: its backward is an index_add, much faster on CPU than advanced indexing
             feats = self.embeddings.index_select(0, rows.flatten()).view(n, self.num_levels, self.level_dim)
             term = weight[..., None] * feats
@@ -171,12 +175,12 @@ class HashGrid(nn.Module):
                 self.strides.contiguous(),
                 self.sizes.contiguous(),
                 self.offsets[:-1].contiguous(),
-                self.dense.to(torch.uint8).contiguous(),
+                self.dense_mask.to(torch.uint8).contiguous(),
             )
         return [t.data_ptr() for t in self._constants]
 
     def extra_repr(self) -> str:
-        hashed = int((~self.dense).sum())
+        hashed = self.dense.count(False)
         return (
             f"input_dim={self.input_dim}, levels={self.num_levels} ({hashed} hashed), "
             f"level_dim={self.level_dim}, base={self.base}, desired={self.desired}, "
@@ -190,7 +194,7 @@ class _CompiledEncoding(torch.autograd.Function):
     @staticmethod
     def forward(ctx, u: Tensor, table: Tensor, grid: HashGrid) -> Tensor:
         lib = kernels.library()
-        out = torch.empty(u.shape[0], grid.out_dim, dtype=torch.float32)
+        out = torch.empty(u.shape[0], grid.out_dim, dtype=torch.float32, device=u.device)
         dims = (u.shape[0], grid.input_dim, grid.num_levels, grid.level_dim, torch.get_num_threads())
         rows = table.detach().contiguous()  # bound to a name: it must outlive the call
         code = lib.moegs_hashgrid_forward(
@@ -208,7 +212,7 @@ class _CompiledEncoding(torch.autograd.Function):
             return None, None, None
         (u,) = ctx.saved_tensors
         grad_out = grad_out.to(torch.float32).contiguous()  # bound to a name: it must outlive the call
-        grad_table = torch.zeros(ctx.table_shape, dtype=torch.float32)
+        grad_table = torch.zeros(ctx.table_shape, dtype=torch.float32, device=u.device)
         code = kernels.library().moegs_hashgrid_backward(
             *ctx.dims, *ctx.grid.kernel_arguments(), u.data_ptr(), grad_out.data_ptr(), grad_table.data_ptr()
         )

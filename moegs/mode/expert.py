@@ -156,7 +156,7 @@ class MoDEExpert(Expert):
     def __init__(self, config: MoDEConfig, members: list[Expert], splats: nn.ParameterDict) -> None:
         super().__init__(config, splats, nn.ModuleList(members))
         self.canonical_keys = tuple(k for k in members[0].splats if k != GATE_KEY)
-        self.register_buffer("deform_from", torch.tensor(-1))  # first step at which the base deforms
+        self.deform_from = -1  # first step at which the base deforms (checkpointed: extra state)
         self.step = 0
         for m in members:
             m.splats = splats  # one ParameterDict: densification keeps everyone's rows in step
@@ -192,7 +192,7 @@ class MoDEExpert(Expert):
         c, control = self.config, self.splats[GATE_KEY]
         e = len(c.experts)
         groups = c.num_gates // e
-        start = int(self.deform_from)
+        start = self.deform_from
         warm = self.training and (start < 0 or self.step < start + c.warmup_iterations)
         if warm:
             scores = warmup_scores(control.shape[0] * groups, e, control).view(-1, c.num_gates)
@@ -222,9 +222,15 @@ class MoDEExpert(Expert):
     def on_step(self, step: int) -> bool:
         self.step = step
         changed = [m.on_step(step) for m in self.members]
-        if int(self.deform_from) < 0 and getattr(self.base, "deforming", True):
-            self.deform_from.fill_(step)
+        if self.deform_from < 0 and getattr(self.base, "deforming", True):
+            self.deform_from = step
         return any(changed)
+
+    def get_extra_state(self) -> dict:
+        return {"deform_from": self.deform_from}
+
+    def set_extra_state(self, state: dict) -> None:
+        self.deform_from = state["deform_from"]
 
     def param_groups(self) -> list[ParamGroup]:
         """The base's groups, each other member's groups without the canonical tensors (renamed

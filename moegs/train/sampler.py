@@ -22,7 +22,7 @@ class ViewSampler:
         self.members: dict[int, list[int]] = {}
         for index, group in enumerate(groups):
             self.members.setdefault(int(group), []).append(index)
-        self.generator = torch.Generator().manual_seed(seed)
+        self.generator = torch.Generator(device="cpu").manual_seed(seed)
         self.stacks: dict[int, list[int]] = {g: [] for g in self.members}
 
     def next(self) -> list[int]:
@@ -31,7 +31,9 @@ class ViewSampler:
         for group in sorted(self.members):
             for _ in range(self.batch_size):
                 if not self.stacks[group]:
-                    order = torch.randperm(len(self.members[group]), generator=self.generator).tolist()
+                    order = torch.randperm(
+                        len(self.members[group]), generator=self.generator, device="cpu"
+                    ).tolist()
                     self.stacks[group] = [self.members[group][i] for i in order]
                 batch.append(self.stacks[group].pop())
         return batch

@@ -11,13 +11,15 @@ every update from the first one at which it holds a row (an emptied tensor keeps
 original).
 
 Moments are per row, so densification (``moegs.train.strategy.ops``) keeps them in step as for Adam; the
-two counts are scalars and are kept. The second set may learn at its own constant rate (``second_lr``:
+two counts are scalars and are kept. The rows of each set are read from the device once per change of the
+flags (``row_sets``), not at every update. The second set may learn at its own constant rate (``second_lr``:
 Ex4DGS's ``feature_motion_lr``, 2.5e-4 on Technicolor Birthday, Painter and Train, ``configs/techni/*.json``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -27,6 +29,26 @@ from torch.optim.radam import radam as radam_update
 KINDS = ("adam", "radam")
 FOREACH = True
 """Every optimiser of the suite (this one and ``moegs.train.optim``'s) runs torch's foreach implementation."""
+
+
+class RowSets(NamedTuple):
+    """Row indices of a set flag ``[N]``: those outside the set (``first``) and inside it (``second``)."""
+
+    first: Tensor
+    second: Tensor
+
+
+def row_sets(flags: Tensor) -> RowSets:
+    """The rows of ``flags [N]`` (bool) outside and inside the set, each ascending. Reads one count from
+    the device per change of ``flags``: the answer is kept on the tensor for its version and storage, which
+    in-place writes and moves change (a write through ``.data`` does not: write the tensor itself)."""
+    key = (flags._version, flags.data_ptr())
+    cached = getattr(flags, "_row_sets", None)
+    if cached is None or cached[0] != key:
+        second = flags.nonzero(as_tuple=True)[0]
+        first = torch.nonzero_static(~flags, size=flags.shape[0] - second.shape[0])[:, 0]
+        cached = flags._row_sets = (key, RowSets(first, second))
+    return cached[1]
 
 
 class SetOptimizer(torch.optim.Optimizer):
@@ -58,27 +80,27 @@ class SetOptimizer(torch.optim.Optimizer):
 
     def _update(self, p: Tensor, group: dict) -> None:
         state = self.state[p]
-        if not state:
+        if not state:  # step counts on the host, as torch's Adam keeps them (not capturable)
             state.update(
-                step=torch.tensor(0.0),
-                step_second=torch.tensor(0.0),
+                step=torch.tensor(0.0, device="cpu"),
+                step_second=torch.tensor(0.0, device="cpu"),
                 exp_avg=torch.zeros_like(p),
                 exp_avg_sq=torch.zeros_like(p),
             )
-        second = self.second_set().to(p.device)
-        if second.shape != p.shape[:1]:
+        flags = self.second_set()
+        if flags.shape != p.shape[:1]:
             raise ValueError(
-                f"SetOptimizer: second_set() gives {tuple(second.shape)} rows for {tuple(p.shape)}"
+                f"SetOptimizer: second_set() gives {tuple(flags.shape)} rows for {tuple(p.shape)}"
             )
         moments = (state["exp_avg"], state["exp_avg_sq"])
         second_lr = group["lr"] if group["second_lr"] is None else group["second_lr"]
-        for key, rows, lr in (("step", ~second, group["lr"]), ("step_second", second, second_lr)):
-            if not (bool(rows.any()) or float(state[key]) > 0):
+        first, second = row_sets(flags)
+        for key, idx, lr in (("step", first, group["lr"]), ("step_second", second, second_lr)):
+            if not (idx.numel() or float(state[key]) > 0):
                 continue  # the set has never held a row: its tensors are not in the original's optimiser yet
-            if bool(rows.all()):
+            if idx.numel() == p.shape[0]:
                 self._functional(group, lr, p, p.grad, *moments, state[key])
                 continue
-            idx = rows.nonzero(as_tuple=True)[0]
             part, part_moments = p[idx], [m[idx] for m in moments]
             self._functional(group, lr, part, p.grad[idx], *part_moments, state[key])
             p[idx] = part

@@ -75,6 +75,34 @@ def test_knn_on_a_line():
     assert d2.tolist() == [[1.0, 9.0], [1.0, 4.0], [4.0, 9.0], [16.0, 36.0]]
 
 
+def test_the_device_knn_finds_the_kd_trees_neighbours():
+    """Off the CPU the neighbours come from ``knn_torch`` (float32 sums of squares): on points without ties
+    they are the KD-tree's, at distances equal to rounding."""
+    from moegs.data.points import knn_torch
+
+    pts = torch.rand(300, 3, generator=torch.Generator().manual_seed(0))
+    d2, idx = knn(pts, 20)
+    d2_torch, idx_torch = knn_torch(pts, 20, max_elements=3000)  # several blocks of rows
+    assert torch.equal(idx, idx_torch)
+    torch.testing.assert_close(d2, d2_torch)
+
+
+def test_the_smoothness_neighbours_follow_the_means_of_the_last_change_and_are_checkpointed():
+    """Found for the means when the number of Gaussians changed (E-D3DGS), so a resume needs those means:
+    they are extra state, and a restored expert finds the same neighbours as the one it was saved from."""
+    expert, _ = _expert()
+    expert.regularization(1)
+    first = expert.knn_index
+    with torch.no_grad():
+        expert.splats["means"].add_(torch.randn_like(expert.splats["means"]))
+    expert.regularization(2)
+    assert expert.knn_index is first  # the same Gaussians: the same neighbours
+    again, _ = _expert()
+    again.load_state_dict(expert.state_dict())
+    again.regularization(3)
+    assert torch.equal(again.knn_index, first) and torch.equal(again.knn_weights, expert.knn_weights)
+
+
 def test_buggy_temporal_tv_by_hand():
     w = torch.tensor([[0.0], [1.0], [3.0]])  # rows minus the LAST row, as in E-D3DGS
     first = torch.tensor([[1.0 - 3.0], [3.0 - 3.0]])

@@ -38,6 +38,18 @@ def test_one_model_per_time(scene):
     expert = MCMCExpert.from_scene(scene, MCMCConfig(max_init_points=30))
     assert expert.num_models == 3 and expert.splats["model"].tolist() == [0] * 30 + [1] * 30 + [2] * 30
     assert not expert.splats["model"].requires_grad
+
+
+def test_frame_rows_are_found_again_when_the_model_index_changes(scene):
+    """Kept per model between refinements (no read per step), found again for a new or rewritten index."""
+    expert = MCMCExpert.from_scene(scene, MCMCConfig(max_init_points=30))
+    rows = expert.frame_rows(0.0)
+    assert rows.tolist() == list(range(30)) and expert.frame_rows(0.0) is rows
+    with torch.no_grad():
+        expert.splats["model"][:5] = 2
+    assert expert.frame_rows(0.0).tolist() == list(range(5, 30))
+    expert.splats["model"] = torch.nn.Parameter(expert.splats["model"][5:].clone(), requires_grad=False)
+    assert expert.frame_rows(0.0).tolist() == list(range(25))
     assert "model" not in {g.name for g in expert.param_groups()}
     assert [expert.model_index(t) for t in (0.0, 0.2, 0.3, 0.5, 0.8, 1.0)] == [0, 0, 1, 1, 2, 2]
     assert expert.view_groups(scene.train) == [expert.model_index(v.camera.time) for v in scene.train]

@@ -44,7 +44,7 @@ def check_gradients(expert, scene) -> None:
     expert.train()
     expert.on_step(expert.config.train.iterations // 2)
     if "dynamic" in expert.splats:  # Ex4DGS: exercise the keyframed path of dynamic Gaussians too
-        expert.splats["dynamic"].data[::2] = True
+        expert.splats["dynamic"][::2] = True
     loss = sum(expert.render(v.camera, scene.background)[0].mean() for v in scene.train)
     loss.backward()
     trained = {id(p) for g in expert.param_groups() for p in g.params}

@@ -9,7 +9,7 @@ import torch
 
 from moegs.train.optim import Optimizers
 from moegs.train.params import ParamGroup
-from moegs.train.set_optim import SetOptimizer
+from moegs.train.set_optim import SetOptimizer, row_sets
 
 TORCH = {
     kind: partial(cls, foreach=True)  # the implementation moegs.train.optim runs (torch's CUDA default)
@@ -142,3 +142,18 @@ def test_every_optimizer_runs_torchs_foreach_implementation():
             _step(o, p, grad)
         _step(opt, param, grad)
     assert torch.equal(param, foreach) and not torch.equal(foreach, single)
+
+
+def test_row_sets_are_read_once_per_change_of_the_flags():
+    """The answer is kept on the flags for their version and storage: in-place writes, a new tensor and a
+    move find the rows again; a read of unchanged flags returns the kept answer."""
+    flags = torch.tensor([False, True, False, True])
+    rows = row_sets(flags)
+    assert rows.first.tolist() == [0, 2] and rows.second.tolist() == [1, 3]
+    assert row_sets(flags) is rows
+    flags[0] = True
+    assert row_sets(flags).second.tolist() == [0, 1, 3]
+    param = torch.nn.Parameter(flags.clone(), requires_grad=False)
+    kept = row_sets(param)
+    param.data = torch.zeros(4, dtype=torch.bool)  # what Module.to does to a parameter
+    assert row_sets(param) is not kept and row_sets(param).second.numel() == 0

@@ -90,8 +90,9 @@ class ADCStrategy(Strategy):
         """Drop the Gaussians of ``prune [N]`` and the same rows of the statistics, which keep
         accumulating for the rest (the originals' ``prune_points`` masks them, it does not restart them)."""
         ops.remove(params, optimizers, prune)
+        keep = (~prune).nonzero(as_tuple=True)[0]
         for key in ("grad2d", "count", "max_radii"):
-            state[key] = state[key][~prune]
+            state[key] = state[key][keep]
 
     def __post_init__(self) -> None:
         if self.batch_stats not in BATCH_STATS:
@@ -171,11 +172,8 @@ class ADCStrategy(Strategy):
         """Last step of a refinement: drop ``prune``, restart the statistics, record the counts."""
         ops.remove(params, optimizers, prune)
         self._reset_stats(state, params["means"].shape[0], params["means"].detach())
-        state["last_refine"] = {
-            "clone": int(clone.sum()),
-            "split": int(to_split.sum()),
-            "prune": int(prune.sum()),
-        }
+        cloned, split, pruned = torch.stack([clone.sum(), to_split.sum(), prune.sum()]).tolist()  # one read
+        state["last_refine"] = {"clone": cloned, "split": split, "prune": pruned}
 
     def densifies(self, step: int) -> bool:
         """Whether ``step`` (inside the densification window) is a densification step."""

@@ -25,9 +25,11 @@ from moegs.train.strategy.base import Strategy
 MAX_COPIES = 50  # N is clamped to 50 and the binomial table has 51 rows (3dgs-mcmc `n_max = 51`)
 
 
-def binomial_table(n_max: int = MAX_COPIES + 1) -> Tensor:
-    """``[n_max, n_max]`` with ``C(n, k)`` at ``[n, k]`` (0 for k > n), float64."""
-    return torch.tensor([[math.comb(n, k) for k in range(n_max)] for n in range(n_max)], dtype=torch.float64)
+def binomial_table(n_max: int = MAX_COPIES + 1, device: torch.device | str = "cpu") -> Tensor:
+    """``[n_max, n_max]`` with ``C(n, k)`` at ``[n, k]`` (0 for k > n), float64, on ``device``."""
+    return torch.tensor(
+        [[math.comb(n, k) for k in range(n_max)] for n in range(n_max)], dtype=torch.float64, device=device
+    )
 
 
 def relocation_update(
@@ -50,9 +52,9 @@ def relocation_update(
     n = copies.clamp(1, MAX_COPIES).to(torch.float64)
     o = opacities.to(torch.float64)
     new_o = 1.0 - (1.0 - o) ** (1.0 / n)  # [M]
-    binoms = binomial_table()
-    i = torch.arange(1, MAX_COPIES + 1, dtype=torch.float64)  # [I]
-    k = torch.arange(MAX_COPIES, dtype=torch.float64)  # [K]
+    binoms = binomial_table(device=o.device)
+    i = torch.arange(1, MAX_COPIES + 1, dtype=torch.float64, device=o.device)  # [I]
+    k = torch.arange(MAX_COPIES, dtype=torch.float64, device=o.device)  # [K]
     coef = binoms[:MAX_COPIES, :MAX_COPIES] * (-1.0) ** k / torch.sqrt(k + 1.0)  # [I, K], C(i-1, k) ...
     terms = coef[None] * new_o[:, None, None] ** (k + 1.0)  # [M, I, K]
     active = (i[None, :] <= n[:, None]).to(torch.float64)  # [M, I]: i runs to N
@@ -178,4 +180,5 @@ class MCMCStrategy(Strategy):
                 f"MCMCStrategy.group_key {self.group_key!r} is not a splat entry ({list(params)})"
             )
         ids = params[self.group_key].detach()
-        return [(ids == g).nonzero(as_tuple=True)[0] for g in torch.unique(ids)]
+        sizes = torch.bincount(ids).tolist()  # one read; a stable sort lists each model's rows in order
+        return [rows for rows in ids.argsort(stable=True).split(sizes) if len(rows)]

@@ -95,7 +95,7 @@ def split(
         mask: ``[N]`` bool, the Gaussians to split.
     """
     index = mask.nonzero(as_tuple=True)[0]
-    keep = ~mask
+    keep = torch.nonzero_static(~mask, size=mask.shape[0] - index.shape[0])[:, 0]
     scales = torch.exp(params["scales"][index])  # [M, 3]
     rotmats = quat_to_rotmat(nn.functional.normalize(params["quats"][index], dim=-1))  # [M, 3, 3]
     noise = torch.randn(samples, len(index), 3, device=scales.device) * scales  # [S, M, 3]
@@ -120,14 +120,14 @@ def split(
 @torch.no_grad()
 def remove(params: nn.ParameterDict, optimizers: dict, mask: Tensor) -> None:
     """Delete the Gaussians selected by ``mask [N]`` and their optimiser rows."""
-    keep = ~mask
+    keep = (~mask).nonzero(as_tuple=True)[0]
     update_params(params, optimizers, lambda k, v: v[keep], lambda k, v: v[keep])
 
 
 @torch.no_grad()
 def reset_opacity(params: nn.ParameterDict, optimizers: dict, value: float) -> None:
     """3DGS opacity reset: ``opacity = min(opacity, value)``; the opacity moments are zeroed."""
-    cap = torch.logit(torch.tensor(value)).item()
+    cap = torch.logit(torch.tensor(value, device="cpu")).item()
     update_params(
         params,
         optimizers,
