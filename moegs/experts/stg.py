@@ -259,8 +259,9 @@ class STGStrategy(ADCStrategy):
       0.2 < max scale < 0.6, opacity > 0.7) learn ω, only the others learn their base rotation
       (``helper_train.py:196-203,219-222``; ``oursfull.py:432-448``): ω is zeroed for the others and its
       Adam moments for all at the first step, gradients are masked at every later one;
-    * world z < ``prune_z_below`` removed at step 1 (STG prunes the initial points, ``train.py:149-152``;
-      here after the first render) and, after ``densify_until``, every ``z_prune_every`` iterations (at
+    * world z < ``prune_z_below`` removed before the first render (STG prunes the initial points before
+      its loop, ``train.py:149-152``, after the depths of ``strategy_inputs`` were taken from the whole
+      cloud) and, after ``densify_until``, every ``z_prune_every`` iterations (at
       ``k z_prune_every + z_prune_every / 2``; N3V, ``helper_train.py:223-226``);
     * at ``bbox_prune_at`` (10000): remove Gaussians outside the initial cloud's box (``helper_train.py:
       177-190,227-228``);
@@ -413,9 +414,11 @@ class STGStrategy(ADCStrategy):
             state["omega_mask"] = torch.cat([state["omega_mask"], pad])
         state["last_refine"] = {"guided": len(points)}
 
-    def step_post_backward(self, params, optimizers, state, step: int, info: dict) -> None:
-        if step == 1 and self.prune_z_below is not None:  # STG prunes the initial points (train.py:149-152)
+    def step_pre_backward(self, params, optimizers, state, step: int, info: dict) -> None:
+        if step == 1 and self.prune_z_below is not None:  # before the first render (train.py:149-152)
             self._remove(params, optimizers, state, params["means"][:, 2] < self.prune_z_below)
+
+    def step_post_backward(self, params, optimizers, state, step: int, info: dict) -> None:
         if step < self.densify_until:
             self._update_stats(params, state, info)
             if self.densifies(step):

@@ -27,6 +27,7 @@ from moegs.experts.stg_decoder import FeatureDecoder
 from moegs.recipes import config_for
 from moegs.train.config import TrainConfig
 from moegs.train.entry import finished_run, load_trained, train_recipe
+from moegs.train.loop import TrainingRun
 from moegs.train.optim import Optimizers
 from moegs.train.segments import SEGMENTS_NAME, train_segments
 
@@ -215,6 +216,34 @@ def test_late_z_pruning_runs_halfway_through_each_period():
         return params["means"].shape[0]
 
     assert [left_after(s) for s in (1000, 1499, 1500, 2500)] == [40, 40, 39, 39]
+
+
+def test_the_initial_z_prune_runs_before_the_first_render():
+    """``train.py:149-152`` prunes the initial points below the plane before its loop; pruned after the first
+    render (as before), the step's statistics no longer matched the cloud and densification raised."""
+    scene = tiny_scene(num_frames=2)
+    config = STGConfig(max_init_points=40)
+    config = replace(
+        config,
+        strategy=replace(config.strategy, prune_z_below=0.0, densify_from=0, densify_every=1),
+        train=replace(config.train, iterations=3),
+    )
+    expert = STGExpert.from_scene(scene, config)
+    below = int((expert.splats["means"][:, 2] < 0.0).sum())
+    assert 0 < below < expert.num_gaussians
+    rendered = []
+    render = expert.render
+
+    def counting(camera, *args, **kwargs):
+        rendered.append(expert.num_gaussians)
+        return render(camera, *args, **kwargs)
+
+    n = expert.num_gaussians
+    run = TrainingRun(expert, scene, config.train, None)  # takes each camera's depths from every point
+    expert.render = counting
+    for step in (1, 2, 3):
+        run.iteration(step)
+    assert rendered[0] == n - below
 
 
 def test_a_guided_event_waits_more_than_the_gap_after_the_last():
