@@ -16,7 +16,7 @@ def test_a_scene_is_loaded_once_per_set_of_loader_arguments(monkeypatch, tmp_pat
         return f"scene {len(loads)}"
 
     monkeypatch.setattr(moegs.data, "load_scene", load_scene)
-    monkeypatch.setattr(moegs.train.entry, "train_recipe", lambda recipe, scene, out, progress: (None, scene))
+    monkeypatch.setattr(moegs.train.entry, "train_recipe", lambda recipe, scene, out, **_: (None, scene))
     white = config_for("fourdgs", "dnerf:mutant", "quick")  # 4DGaussians trains on white
     black = config_for("grid4d", "dnerf:mutant", "quick")  # Grid4D on black
     assert white.background == "white" and black.background == "black"
