@@ -45,3 +45,16 @@ def basketball_root() -> Path:
 @pytest.fixture(scope="session")
 def lpips_root() -> Path:
     return real_data("lpips_weights/lpips_tf/alex")
+
+
+@pytest.fixture
+def gpus(monkeypatch):
+    """``gpus(n)``: torch sees ``n`` GPUs (0: a machine without CUDA); nothing else about CUDA is touched."""
+
+    def see(n: int) -> None:
+        monkeypatch.setattr(torch.cuda, "is_available", lambda: n > 0)
+        monkeypatch.setattr(torch.cuda, "device_count", lambda: n)
+        monkeypatch.setattr(torch.cuda, "current_device", lambda: 0)
+        monkeypatch.setattr(torch.version, "cuda", "12.4" if n else None)
+
+    return see

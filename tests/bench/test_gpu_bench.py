@@ -127,17 +127,6 @@ def test_a_worker_gpu_is_named_as_this_process_sees_it(popen, monkeypatch):
 
 
 # --------------------------------------------------------------------------------- bad input
-@pytest.fixture
-def gpus(monkeypatch):
-    """``gpus(n)``: torch sees ``n`` GPUs (0: a machine without CUDA)."""
-
-    def see(n: int) -> None:
-        monkeypatch.setattr(torch.cuda, "is_available", lambda: n > 0)
-        monkeypatch.setattr(torch.cuda, "device_count", lambda: n)
-        monkeypatch.setattr(torch.cuda, "current_device", lambda: 0)
-        monkeypatch.setattr(torch.version, "cuda", "12.4" if n else None)
-
-    return see
 
 
 @pytest.mark.parametrize(

@@ -13,18 +13,6 @@ from moegs.device import device_kind, device_name, resolve_device
 from moegs.train.checkpoint import check_device, restore_rng, rng_state
 
 
-@pytest.fixture
-def gpus(monkeypatch):
-    """``gpus(n)``: torch sees ``n`` GPUs (0: a CPU-only machine), nothing else about CUDA is touched."""
-
-    def set_count(n: int) -> None:
-        monkeypatch.setattr(torch.cuda, "is_available", lambda: n > 0)
-        monkeypatch.setattr(torch.cuda, "device_count", lambda: n)
-        monkeypatch.setattr(torch.cuda, "current_device", lambda: 0)
-
-    return set_count
-
-
 def test_auto_is_the_gpu_when_there_is_one_else_the_cpu(gpus):
     gpus(0)
     assert resolve_device("auto") == resolve_device(None) == torch.device("cpu")
