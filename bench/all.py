@@ -520,15 +520,15 @@ def _print_summary(reports, selected, paths, elapsed: float, what: str = "") -> 
     from rich.console import Console
     from rich.table import Table
 
+    from bench.report import claim_counts
+
     title = f"moegs bench ({what}, {elapsed:.0f} s)" if what else f"moegs bench ({elapsed:.0f} s)"
     table = Table(title=title, show_lines=False)
-    for col in ("id", "status", "claims held/failed/within noise/n.a."):
+    for col in ("id", "status", "claims (ours)"):
         table.add_column(col, overflow="fold")
     for rep in reports:
-        if rep.id not in selected:
-            continue
-        counts = [sum(c["ours"] == s for c in rep.claims) for s in ("held", "failed", "within noise")]
-        table.add_row(rep.id, rep.status, "/".join(map(str, [*counts, len(rep.claims) - sum(counts)])))
+        if rep.id in selected:
+            table.add_row(rep.id, rep.status, claim_counts(rep.claims))
     console = Console(stderr=True)
     console.print(table)
     console.print(f"report: {paths['md']}  (html: {paths['html']})")

@@ -8,18 +8,22 @@ computed scenes), ``"@scenes"`` (every scene column that has values), or a list 
 
 Noise: a view may carry ``noise`` (metric name -> the seed-to-seed spread measured in this run). A
 comparison whose margin is within it decides nothing: the claim is "within noise" unless another
-comparison fails beyond the noise. The paper's own numbers carry no noise.
+comparison fails beyond the noise. An undecided claim still says which way it leans (``leans``): "with the
+paper" when the same comparisons hold at zero noise, "against the paper" when they fail. The paper's own
+numbers carry no noise. A run with no spread at all (one seed and none borrowed) judges nothing: its
+claims are "not judged" (``bench.report``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 from bench.spec import Claim, metric
 
-HELD, FAILED, NA, NOISE = "held", "failed", "n/a", "within noise"
+HELD, FAILED, NA, NOISE, NOT_JUDGED = "held", "failed", "n/a", "within noise", "not judged"
+WITH_PAPER, AGAINST_PAPER = "with the paper", "against the paper"
 
 
 class ValuesView(Protocol):
@@ -32,12 +36,30 @@ class ValuesView(Protocol):
 
 @dataclass(frozen=True)
 class ClaimResult:
-    status: str  # "held" | "failed" | "n/a"
+    status: str  # HELD | FAILED | NOISE | NA | NOT_JUDGED
     detail: str
+    leans: str | None = None  # a NOISE verdict's direction: WITH_PAPER or AGAINST_PAPER
 
     @property
     def held(self) -> bool:
         return self.status == HELD
+
+    @property
+    def verdict(self) -> str:
+        """The status, with the direction of an undecided one: ``within noise, against the paper``."""
+        return f"{self.status}, {self.leans}" if self.leans else self.status
+
+
+class _WithoutNoise:
+    """A values view without its seed spread (what an undecided claim leans to)."""
+
+    noise: dict[str, float] = {}
+
+    def __init__(self, view: ValuesView) -> None:
+        self._view = view
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._view, name)
 
 
 def _fmt(x: float | None) -> str:
@@ -283,5 +305,9 @@ def evaluate(claim: Claim, values: ValuesView) -> ClaimResult:
     """Run one claim; a malformed claim is a programming error and raises."""
     if claim.check not in CHECKS:
         raise KeyError(f"claim {claim.id}: unknown check {claim.check!r}; valid: {', '.join(CHECKS)}")
-    args: dict[str, Any] = dict(claim.args)
-    return CHECKS[claim.check](values, **args)
+    check, args = CHECKS[claim.check], dict(claim.args)
+    result = check(values, **args)
+    if result.status != NOISE:
+        return result
+    at_zero_noise = check(_WithoutNoise(values), **args)
+    return replace(result, leans=WITH_PAPER if at_zero_noise.held else AGAINST_PAPER)

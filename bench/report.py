@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bench.claims import FAILED, HELD, NA, NOISE, evaluate
+from bench.claims import AGAINST_PAPER, FAILED, HELD, NA, NOISE, NOT_JUDGED, ClaimResult, evaluate
 from bench.keys import code_version, git_commit
 from bench.presets import BenchPreset
 from bench.results import write_text_atomic
@@ -99,6 +99,29 @@ def _status(values: SpecValues, preset: BenchPreset) -> str:
     return "; ".join(parts)
 
 
+NO_BASIS = (
+    "no seed spread was measured or borrowed for these scenes (each row trained once): a difference "
+    "cannot be told from noise"
+)
+
+
+def verdict(claim: dict[str, Any]) -> str:
+    """A report's claim verdict as a reader sees it: ``within noise, against the paper``."""
+    return f"{claim['ours']}, {claim['ours_leans']}" if claim.get("ours_leans") else claim["ours"]
+
+
+def claim_counts(claims: list[dict[str, Any]]) -> str:
+    """``3 held / 2 failed / 5 within noise (4 against the paper) / 1 n/a`` (zero counts of the last two
+    kinds and of "not judged" left out)."""
+    count = {s: sum(c["ours"] == s for c in claims) for s in (HELD, FAILED, NOISE, NOT_JUDGED, NA)}
+    against = sum(c.get("ours_leans") == AGAINST_PAPER for c in claims)
+    parts = [f"{count[HELD]} held", f"{count[FAILED]} failed", f"{count[NOISE]} within noise"]
+    if count[NOISE]:
+        parts[-1] += f" ({against} {AGAINST_PAPER})"
+    parts += [f"{count[s]} {s}" for s in (NOT_JUDGED, NA) if count[s]]
+    return " / ".join(parts)
+
+
 def spec_report(
     values: SpecValues, preset: BenchPreset, latex: Path | None = None, figures: list[Path] | None = None
 ) -> SpecReport:
@@ -106,7 +129,7 @@ def spec_report(
     spec = values.spec
     claims = []
     for claim in spec.checked_claims():
-        ours = evaluate(claim, values)
+        ours = evaluate(claim, values) if values.noise else ClaimResult(NOT_JUDGED, NO_BASIS)
         paper = evaluate(claim, values.paper) if values.paper_table is not None else None
         claims.append(
             {
@@ -114,6 +137,7 @@ def spec_report(
                 "text": claim.text,
                 "source": claim.source,
                 "ours": ours.status,
+                "ours_leans": ours.leans,
                 "ours_detail": ours.detail,
                 "paper": paper.status if paper else NA,
                 "paper_detail": paper.detail if paper else "the paper prints no numbers for this",
@@ -200,9 +224,7 @@ def history_html(history: list[dict[str, Any]]) -> list[str]:
 
 
 def _claim_counts(rep: SpecReport) -> str:
-    counts = {s: sum(c["ours"] == s for c in rep.claims) for s in (HELD, FAILED, NOISE)}
-    na = len(rep.claims) - sum(counts.values())
-    return f"{counts[HELD]} held / {counts[FAILED]} failed / {counts[NOISE]} within noise / {na} n/a"
+    return claim_counts(rep.claims)
 
 
 def _rel(path: str, base: Path) -> str:
@@ -278,7 +300,7 @@ def noise_markdown(noise: dict[str, Any]) -> list[str]:
     fallback = noise.get("metrics") or {}
     scenes = noise.get("scenes") or {}
     if not scenes:
-        return ["- **Noise**: no row finished two seeds: claims are not noise-aware."]
+        return ["- **Noise**: no row finished two seeds and none was borrowed: claims are not judged."]
     lines = [
         "- **Noise**: a claim is judged against the seed-to-seed spread (max - min over seeds of one row) "
         "of its table's scenes: a scene's own where its cells were trained with several seeds, else the "
@@ -290,7 +312,9 @@ def noise_markdown(noise: dict[str, Any]) -> list[str]:
             if fallback
             else " (none measured)"
         )
-        + ". A claim whose margin is inside it is reported as 'within noise', not as held or failed.",
+        + ". A claim whose margin is inside it is reported as 'within noise', not as held or failed, with "
+        "the way it leans: 'with the paper' when its comparisons hold at zero noise, 'against the paper' "
+        "when they fail.",
         "",
         "| scene | seeds | from | PSNR spread per row (dB) | largest | largest, dynamic region |",
         "|---|---|---|---|---|---|",
@@ -497,7 +521,7 @@ def render_markdown(
             lines += ["| claim | ours | paper's numbers | detail (ours) |", "|---|---|---|---|"]
             for c in rep.claims:
                 lines.append(
-                    f"| {c['text']} ({c['source']}) | {c['ours']} | {c['paper']} | "
+                    f"| {c['text']} ({c['source']}) | {verdict(c)} | {c['paper']} | "
                     f"{c['ours_detail'].replace('|', '/')} |"
                 )
             lines.append("")
@@ -576,7 +600,8 @@ def render_html(reports: list[SpecReport], header: dict[str, Any], base: Path | 
             for c in rep.claims:
                 cls = {"held": "held", "failed": "failed"}.get(c["ours"], "na")
                 out.append(
-                    f"<tr><td>{e(c['text'])} <i>({e(c['source'])})</i></td><td class='{cls}'>{c['ours']}</td>"
+                    f"<tr><td>{e(c['text'])} <i>({e(c['source'])})</i></td>"
+                    f"<td class='{cls}'>{e(verdict(c))}</td>"
                     f"<td>{c['paper']}</td><td>{e(c['ours_detail'])}</td></tr>"
                 )
             out.append("</table>")

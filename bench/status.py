@@ -16,6 +16,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from bench.claims import AGAINST_PAPER, NOISE
 from bench.readme import paper_name, update_readme
 from bench.runlog import last_computing, took
 from moegs.io import read_json
@@ -24,7 +25,7 @@ QUICK = Path("reports") / "summary.json"
 STANDARD = Path("reports") / "standard" / "summary.json"
 """Defaults, relative to the working directory (where ``bench.all`` writes its outputs)."""
 
-VERDICTS = ("held", "failed", "within noise", "n/a")
+VERDICTS = ("held", "failed", "within noise", "not judged", "n/a")
 MOTION_SCENE, MOTION_RECIPE = "synthetic:n3v_like", "n3v"
 """Issue 12's floors are stated on the N3V stand-in, trained with the N3V recipes."""
 FLOOR_EXPERTS = ("fourdgs", "ed3dgs", "ex4dgs", "stg")
@@ -44,9 +45,17 @@ def claim_counts(summary: dict[str, Any]) -> Counter:
 
 
 def claims_cell(summary: dict[str, Any]) -> str:
+    """``18 held, 15 failed, 43 within noise (32 against the paper), 3 n/a (of 79)``."""
     counts = claim_counts(summary)
-    parts = ", ".join(f"{counts[v]} {v}" for v in VERDICTS if counts[v])
-    return f"{parts} (of {sum(counts.values())})"
+    against = sum(
+        claim.get("ours_leans") == AGAINST_PAPER for spec in summary["specs"] for claim in spec["claims"]
+    )
+    parts = [
+        f"{counts[v]} {v}" + (f" ({against} {AGAINST_PAPER})" if v == NOISE else "")
+        for v in VERDICTS
+        if counts[v]
+    ]
+    return f"{', '.join(parts)} (of {sum(counts.values())})"
 
 
 def regimes_cell(regimes: dict[str, float] | None) -> str:

@@ -9,10 +9,13 @@ import torch
 from helpers.cells import staged_scenes, write_ok_result
 
 from bench.claims import (
+    AGAINST_PAPER,
     FAILED,
     HELD,
     NA,
     NOISE,
+    NOT_JUDGED,
+    WITH_PAPER,
     at_least,
     best,
     better,
@@ -25,6 +28,7 @@ from bench.claims import (
     within,
 )
 from bench.registry import get_spec, list_specs
+from bench.report import claim_counts, verdict
 from bench.spec import Claim
 from moegs.moe import region_shares, winner_coherence
 
@@ -533,3 +537,55 @@ def test_details_name_the_metric_where_the_column_prints_another():
     plain = better(v, "a", "b", columns=[col])
     assert "PSNR (dB): 30 vs b 28.3" in plain.detail and "[" not in plain.detail
     assert "PSNR (dB) [PSNR dynamic]: |24.4 - 21.7|" in within(v, "a", "b", 1.0, "PSNR dynamic", [col]).detail
+
+
+@pytest.mark.parametrize(
+    ("a", "b", "leans"),
+    [(28.2, 28.0, WITH_PAPER), (27.9, 28.0, AGAINST_PAPER), (28.0, 28.0, AGAINST_PAPER)],
+)
+def test_an_undecided_claim_says_which_way_it_leans(a, b, leans):
+    """The lean is the verdict of the same comparisons at zero noise (a tie fails a strict claim)."""
+    claim = Claim("c", "A beats B", "better", {"a": "A", "b": "B"})
+    result = evaluate(claim, View(psnr(A=a, B=b), {"PSNR": 0.3}))
+    assert (result.status, result.leans) == (NOISE, leans)
+    assert result.verdict == f"within noise, {leans}"
+    decided = evaluate(claim, View(psnr(A=29.0, B=28.0), {"PSNR": 0.3}))
+    assert (decided.status, decided.leans, decided.verdict) == (HELD, None, HELD)
+
+
+def test_within_and_monotone_lean_too():
+    kept = Claim("c", "pruning keeps PSNR", "within", {"a": "A", "b": "B", "tolerance": 0.1})
+    assert evaluate(kept, View(psnr(A=30.0, B=30.25), {"PSNR": 0.2})).leans == AGAINST_PAPER
+    falls = Claim("m", "more is worse", "monotone", {"rows": ["A"], "columns": ["1", "2"]})
+    steps = View({("A", c, "PSNR"): x for c, x in (("1", 30.0), ("2", 30.1))}, {"PSNR": 0.2})
+    assert evaluate(falls, steps).leans == AGAINST_PAPER
+
+
+def test_claim_counts_say_how_many_undecided_claims_go_against_the_paper():
+    claims = [
+        {"ours": HELD},
+        {"ours": NOISE, "ours_leans": AGAINST_PAPER},
+        {"ours": NOISE, "ours_leans": WITH_PAPER},
+        {"ours": NOISE, "ours_leans": AGAINST_PAPER},
+        {"ours": NA},
+    ]
+    assert claim_counts(claims) == "1 held / 0 failed / 3 within noise (2 against the paper) / 1 n/a"
+    assert claim_counts([{"ours": NOT_JUDGED}]) == "0 held / 0 failed / 0 within noise / 1 not judged"
+    assert verdict(claims[1]) == "within noise, against the paper" and verdict(claims[0]) == HELD
+
+
+def test_a_run_without_any_seed_spread_judges_no_claim(tmp_path, monkeypatch):
+    """At ``tiny`` (one seed, nothing to borrow) every claim reads "not judged" with the reason, while the
+    paper's own numbers are still checked."""
+    from bench.plan import make_plan
+    from bench.presets import get_preset
+    from bench.report import NO_BASIS, spec_report
+    from bench.store import Workspace
+    from bench.values import SpecValues
+
+    plan = make_plan([get_spec("tab17")], get_preset("tiny"))
+    values = SpecValues(plan.specs[0], Workspace(tmp_path), noise={})
+    report = spec_report(values, get_preset("tiny"))
+    assert report.claims and {c["ours"] for c in report.claims} == {NOT_JUDGED}
+    assert all(c["ours_detail"] == NO_BASIS for c in report.claims)
+    assert {c["paper"] for c in report.claims} <= {HELD, FAILED, NA}
