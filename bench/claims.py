@@ -116,14 +116,15 @@ def better(
             y = v.get(o, col, metric)
             if x is None or y is None:
                 continue
-            checked.append(f"{_at(v, col, metric)}: {_fmt(x)} vs {o} {_fmt(y)}")
+            checked.append(f"{_at(v, col, metric)}: {_fmt(x)} vs {o} {_fmt(y)} (Δ {x - y:+.3g})")
             statuses.append(_compare(x, y, metric, strict, margin, noise))
     if not checked:
         return ClaimResult(NA, f"no column where {a} and {others} both have {metric}")
     verdict = _verdict(statuses)
     if verdict == FAILED:
         lost = [c for c, s in zip(checked, statuses, strict=True) if s == FAILED]
-        return ClaimResult(FAILED, f"{a} not better on " + "; ".join(lost))
+        beyond = f" (beyond the seed spread {noise:.3g})" if noise > 0 else ""
+        return ClaimResult(FAILED, f"{a} not better on " + "; ".join(lost) + beyond)
     if verdict == NOISE:
         close = [c for c, s in zip(checked, statuses, strict=True) if s == NOISE]
         return ClaimResult(NOISE, f"margin within the seed spread {noise:.3g} on " + "; ".join(close))
