@@ -520,7 +520,7 @@ def _print_summary(reports, selected, paths, elapsed: float, what: str = "") -> 
     from rich.console import Console
     from rich.table import Table
 
-    from bench.report import claim_counts
+    from bench.report import claims_by_kind
 
     title = f"moegs bench ({what}, {elapsed:.0f} s)" if what else f"moegs bench ({elapsed:.0f} s)"
     table = Table(title=title, show_lines=False)
@@ -528,7 +528,7 @@ def _print_summary(reports, selected, paths, elapsed: float, what: str = "") -> 
         table.add_column(col, overflow="fold")
     for rep in reports:
         if rep.id in selected:
-            table.add_row(rep.id, rep.status, claim_counts(rep.claims))
+            table.add_row(rep.id, rep.status, claims_by_kind(rep.claims))
     console = Console(stderr=True)
     console.print(table)
     console.print(f"report: {paths['md']}  (html: {paths['html']})")

@@ -110,6 +110,10 @@ def verdict(claim: dict[str, Any]) -> str:
     return f"{claim['ours']}, {claim['ours_leans']}" if claim.get("ours_leans") else claim["ours"]
 
 
+KIND_LABELS = {"paper": "paper", "sanity": "sanity checks", "suite": "dynamic-region twins"}
+"""How reports name each claim kind (``bench.spec.CLAIM_KINDS``)."""
+
+
 def claim_counts(claims: list[dict[str, Any]]) -> str:
     """``3 held / 2 failed / 5 within noise (4 against the paper) / 1 n/a`` (zero counts of the last two
     kinds and of "not judged" left out)."""
@@ -120,6 +124,15 @@ def claim_counts(claims: list[dict[str, Any]]) -> str:
         parts[-1] += f" ({against} {AGAINST_PAPER})"
     parts += [f"{count[s]} {s}" for s in (NOT_JUDGED, NA) if count[s]]
     return " / ".join(parts)
+
+
+def claims_by_kind(claims: list[dict[str, Any]]) -> str:
+    """``claim_counts`` of each kind present, the paper's first: ``paper: 3 held / ...; sanity checks: 2
+    held / 0 failed / 0 within noise``."""
+    kinds = [k for k in KIND_LABELS if any(c.get("kind", "paper") == k for c in claims)]
+    return "; ".join(
+        f"{KIND_LABELS[k]}: {claim_counts([c for c in claims if c.get('kind', 'paper') == k])}" for k in kinds
+    )
 
 
 def spec_report(
@@ -134,6 +147,7 @@ def spec_report(
         claims.append(
             {
                 "id": claim.id,
+                "kind": claim.kind,
                 "text": claim.text,
                 "source": claim.source,
                 "ours": ours.status,
@@ -224,7 +238,7 @@ def history_html(history: list[dict[str, Any]]) -> list[str]:
 
 
 def _claim_counts(rep: SpecReport) -> str:
-    return claim_counts(rep.claims)
+    return claims_by_kind(rep.claims)
 
 
 def _rel(path: str, base: Path) -> str:
@@ -518,11 +532,11 @@ def render_markdown(
             lines.append(f"**Notes:** {rep.notes}")
         lines.append("")
         if rep.claims:
-            lines += ["| claim | ours | paper's numbers | detail (ours) |", "|---|---|---|---|"]
+            lines += ["| claim | kind | ours | paper's numbers | detail (ours) |", "|---|---|---|---|---|"]
             for c in rep.claims:
                 lines.append(
-                    f"| {c['text']} ({c['source']}) | {verdict(c)} | {c['paper']} | "
-                    f"{c['ours_detail'].replace('|', '/')} |"
+                    f"| {c['text']} ({c['source']}) | {c.get('kind', 'paper')} | {verdict(c)} | "
+                    f"{c['paper']} | {c['ours_detail'].replace('|', '/')} |"
                 )
             lines.append("")
         if rep.deltas:
@@ -596,12 +610,13 @@ def render_html(reports: list[SpecReport], header: dict[str, Any], base: Path | 
         if rep.notes:
             out.append(f"<p><b>Notes:</b> {e(rep.notes)}</p>")
         if rep.claims:
-            out.append("<table><tr><th>claim</th><th>ours</th><th>paper's numbers</th><th>detail</th></tr>")
+            heads = ("claim", "kind", "ours", "paper's numbers", "detail")
+            out.append("<table><tr>" + "".join(f"<th>{h}</th>" for h in heads) + "</tr>")
             for c in rep.claims:
                 cls = {"held": "held", "failed": "failed"}.get(c["ours"], "na")
                 out.append(
                     f"<tr><td>{e(c['text'])} <i>({e(c['source'])})</i></td>"
-                    f"<td class='{cls}'>{e(verdict(c))}</td>"
+                    f"<td>{e(c.get('kind', 'paper'))}</td><td class='{cls}'>{e(verdict(c))}</td>"
                     f"<td>{c['paper']}</td><td>{e(c['ours_detail'])}</td></tr>"
                 )
             out.append("</table>")

@@ -140,7 +140,11 @@ class Claim:
     ``source`` says where the paper makes the claim: the section whose text states it (``Sec. IV-C
     (ii)``, in the numbering of ``paper/moe-gs-mode.tex``), or the table alone (``Table III``) where
     only the table's numbers show it. ``twin``: whether a spec about motion also checks the claim on
-    the dynamic region; False where the paper says otherwise about motion, or nothing.
+    the dynamic region; False where the paper says otherwise about motion, or nothing. ``kind``
+    (``CLAIM_KINDS``): ``paper``, a statement of the paper; ``sanity``, true by construction or a check of
+    the implementation (pruning lowers memory, two experts cost more than one, single pass leaves the image
+    as it is): reported as a check that passed or failed, never as reproducing the paper; ``suite``, ours
+    (the dynamic-region twins).
     """
 
     id: str
@@ -149,9 +153,12 @@ class Claim:
     args: Mapping[str, Any] = field(default_factory=dict)
     source: str = ""
     twin: bool = field(default=True, kw_only=True)
+    kind: str = field(default="paper", kw_only=True)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "args", _frozen(self.args))
+        if self.kind not in CLAIM_KINDS:
+            raise ValueError(f"claim {self.id}: kind must be one of {CLAIM_KINDS}, got {self.kind!r}")
 
     def on_dynamic_region(self) -> Claim | None:
         """The same claim on the dynamic region's PSNR, for claims about PSNR that have a twin (None
@@ -159,8 +166,12 @@ class Claim:
         if not self.twin or self.check not in DYNAMIC_TWINS or self.args.get("metric", "PSNR") != "PSNR":
             return None
         args = {**self.args, "metric": "PSNR dynamic"}
-        return Claim(f"{self.id}-dynamic", f"{self.text} [dynamic region]", self.check, args, self.source)
+        text = f"{self.text} [dynamic region]"
+        return Claim(f"{self.id}-dynamic", text, self.check, args, self.source, kind="suite")
 
+
+CLAIM_KINDS = ("paper", "sanity", "suite")
+"""What a claim is (``Claim.kind``); reports count each kind apart."""
 
 DYNAMIC_TWINS = ("better", "best", "order", "exceeds", "within", "monotone", "differs_across")
 """Checks that compare one metric across rows, so that they also apply to the dynamic region's PSNR."""

@@ -39,17 +39,22 @@ def _met(ok: bool) -> str:
     return "met" if ok else "missed"
 
 
-def claim_counts(summary: dict[str, Any]) -> Counter:
-    """How many of the summary's claims each verdict got (``VERDICTS``)."""
-    return Counter(claim["ours"] for spec in summary["specs"] for claim in spec["claims"])
+def _claims(summary: dict[str, Any], kind: str | None) -> list[dict[str, Any]]:
+    """The summary's claims of ``kind`` (``bench.spec.CLAIM_KINDS``; None: all)."""
+    every = [claim for spec in summary["specs"] for claim in spec["claims"]]
+    return [c for c in every if kind is None or c.get("kind", "paper") == kind]
 
 
-def claims_cell(summary: dict[str, Any]) -> str:
-    """``18 held, 15 failed, 43 within noise (32 against the paper), 3 n/a (of 79)``."""
-    counts = claim_counts(summary)
-    against = sum(
-        claim.get("ours_leans") == AGAINST_PAPER for spec in summary["specs"] for claim in spec["claims"]
-    )
+def claim_counts(summary: dict[str, Any], kind: str | None = None) -> Counter:
+    """How many of the summary's claims (of ``kind``) each verdict got (``VERDICTS``)."""
+    return Counter(claim["ours"] for claim in _claims(summary, kind))
+
+
+def claims_cell(summary: dict[str, Any], kind: str | None = "paper") -> str:
+    """The verdicts of the claims of ``kind``: ``18 held, 15 failed, 43 within noise (32 against the
+    paper), 3 n/a (of 79)``."""
+    counts = claim_counts(summary, kind)
+    against = sum(claim.get("ours_leans") == AGAINST_PAPER for claim in _claims(summary, kind))
     parts = [
         f"{counts[v]} {v}" + (f" ({against} {AGAINST_PAPER})" if v == NOISE else "")
         for v in VERDICTS
@@ -141,6 +146,10 @@ def section(quick: dict[str, Any], standard: dict[str, Any]) -> str:
         "| | quick | standard |",
         "|---|---|---|",
         f"| the paper's claims on our numbers | {claims_cell(quick)} | {claims_cell(standard)} |",
+        f"| sanity checks (true by construction: not reproductions) | {claims_cell(quick, 'sanity')} | "
+        f"{claims_cell(standard, 'sanity')} |",
+        f"| the paper's PSNR claims on the dynamic region (ours) | {claims_cell(quick, 'suite')} | "
+        f"{claims_cell(standard, 'suite')} |",
         f"| cells (single-process minutes) | {quick['compute']['minutes']:.1f} | "
         f"{standard['compute']['minutes']:.1f} |",
         f"| wall clock of the run that computed them | {wall_clock_cell(quick)} | "

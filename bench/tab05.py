@@ -38,6 +38,7 @@ SPEC = Spec(
             "order",
             {"rows": [_P75, _P55, _N2], "metric": "Memory", "columns": ["Memory"]},
             "Table V",
+            kind="sanity",  # fewer Gaussians, less memory
         ),
         *(
             Claim(
@@ -56,6 +57,7 @@ SPEC = Spec(
                 "better",
                 {"a": e, "b": _N2, "metric": m, "columns": [m]},
                 "Sec. IV-C, Quantitative",
+                kind="sanity",  # N=2 holds and renders both experts
             )
             for e, key in (("STG†", "stg"), ("Ex4DGS", "ex4dgs"))
             for m in ("FPS", "Memory")

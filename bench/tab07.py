@@ -37,6 +37,7 @@ SPEC = Spec(
             "within",
             {"a": _FULL, "b": _NO_SP, "tolerance": 0.01, "columns": ["PSNR"]},
             "Table VII",
+            kind="sanity",  # an implementation check: one pass composites what separate passes do
         ),
         Claim(
             "full-best-fps",
@@ -57,6 +58,7 @@ SPEC = Spec(
             "best",
             {"row": _FULL, "among": [_NONE, _NO_SP, _NO_PR], "metric": "Memory", "columns": ["Memory"]},
             "Sec. IV-C (ii)",
+            kind="sanity",  # the pruned model is the smallest
         ),
         Claim(
             "pruning-memory",
@@ -64,6 +66,7 @@ SPEC = Spec(
             "better",
             {"a": _FULL, "b": _NO_PR, "metric": "Memory", "columns": ["Memory"]},
             "Sec. IV-C (ii)",
+            kind="sanity",  # fewer Gaussians, less memory
         ),
         Claim(
             "pruning-keeps-psnr",

@@ -42,6 +42,7 @@ SPEC = Spec(
             "better",
             {"a": _BASE, "b": [_M_ED, _M_GRID], "metric": "Time", "columns": ["Train Time (h)"]},
             "Sec. IV-D (ii)",
+            kind="sanity",  # MoDE trains the baseline's fields and a second deformation
         ),
         *(
             Claim(
@@ -50,6 +51,7 @@ SPEC = Spec(
                 "better",
                 {"a": row, "b": _MOE, "metric": "Time", "columns": ["Train Time (h)"]},
                 "Sec. IV-D (ii)",
+                kind="sanity",  # MoE-GS trains two experts and a router
             )
             for row, suffix in _VARIANTS
         ),

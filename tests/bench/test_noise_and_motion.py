@@ -28,7 +28,7 @@ from bench.claims import (
     within,
 )
 from bench.registry import get_spec, list_specs
-from bench.report import claim_counts, verdict
+from bench.report import claim_counts, claims_by_kind, verdict
 from bench.spec import Claim
 from moegs.moe import region_shares, winner_coherence
 
@@ -589,3 +589,18 @@ def test_a_run_without_any_seed_spread_judges_no_claim(tmp_path, monkeypatch):
     assert report.claims and {c["ours"] for c in report.claims} == {NOT_JUDGED}
     assert all(c["ours_detail"] == NO_BASIS for c in report.claims)
     assert {c["paper"] for c in report.claims} <= {HELD, FAILED, NA}
+
+
+def test_claims_have_a_kind_and_reports_count_each_apart():
+    """Dynamic-region twins are the suite's; cost and implementation checks are sanity checks, never
+    counted with the paper's claims."""
+    kinds = {c.id: c.kind for sid in list_specs() for c in get_spec(sid).checked_claims()}
+    assert kinds["n2-every-scene-dynamic"] == "suite" and kinds["n2-every-scene"] == "paper"
+    assert kinds["prune-memory"] == kinds["single-pass-same-image"] == kinds["mode-modest-cost"] == "sanity"
+    with pytest.raises(ValueError, match="kind must be one of"):
+        Claim("x", "x", "better", kind="ours")
+    claims = [{"ours": HELD, "kind": "sanity"}, {"ours": NOISE, "ours_leans": WITH_PAPER}, {"ours": FAILED}]
+    assert claims_by_kind(claims) == (
+        "paper: 0 held / 1 failed / 1 within noise (0 against the paper); "
+        "sanity checks: 1 held / 0 failed / 0 within noise"
+    )

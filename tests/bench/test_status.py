@@ -10,6 +10,7 @@ from bench.status import (
     QUICK,
     STANDARD,
     claim_counts,
+    claims_cell,
     main,
     motion_rows,
     real_scene_rows,
@@ -73,6 +74,13 @@ def test_counts_floors_and_routing():
         ],
     )
     assert claim_counts(quick) == {"held": 1, "failed": 1, "within noise": 2}
+    quick["specs"][0]["claims"] += [
+        {"ours": "held", "kind": "sanity"},
+        {"ours": "within noise", "ours_leans": "against the paper", "kind": "suite"},
+    ]
+    assert claims_cell(quick) == "1 held, 1 failed, 2 within noise (0 against the paper) (of 4)"
+    assert claims_cell(quick, "sanity") == "1 held (of 1)"
+    assert claims_cell(quick, "suite") == "1 within noise (1 against the paper) (of 1)"
     rows = motion_rows(quick)
     assert rows == [
         "| Grid4D | 29.00 | 0.50 | – | – |",
