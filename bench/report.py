@@ -8,7 +8,6 @@ implemented yet with the missing pieces, and failed cells with their log paths.
 
 from __future__ import annotations
 
-import base64
 import html
 import json
 import os
@@ -223,18 +222,6 @@ def history_markdown(history: list[dict[str, Any]]) -> list[str]:
         return []
     title, lines = _recent_runs(history)
     return [f"- {title}:", *(f"  - {line}" for line in lines)]
-
-
-def history_html(history: list[dict[str, Any]]) -> list[str]:
-    """``_recent_runs`` as an HTML paragraph and list (none without a recorded run)."""
-    if not history:
-        return []
-    title, lines = _recent_runs(history)
-    return [
-        f"<p>{html.escape(title)}:</p><ul>",
-        *(f"<li>{html.escape(line)}</li>" for line in lines),
-        "</ul>",
-    ]
 
 
 def _claim_counts(rep: SpecReport) -> str:
@@ -469,6 +456,31 @@ def compute_markdown(compute: dict[str, Any]) -> list[str]:
     return lines
 
 
+def values_markdown(values: list[dict[str, Any]]) -> list[str]:
+    """Our value of every computed cell of a table, one markdown row per table row: ``ours`` and, where
+    ours ran on the paper's real scene, ``paper P (Δ D)`` beside it."""
+    if not values:
+        return []
+    rows = list(dict.fromkeys(v["row"] for v in values))
+    cells = list(dict.fromkeys((v["column"], v["metric"]) for v in values))
+    at = {(v["row"], v["column"], v["metric"]): v for v in values}
+
+    def text(v: dict[str, Any] | None) -> str:
+        if v is None:
+            return "–"
+        if v["paper"] is None:
+            return f"{v['ours']:.4g}"
+        return f"{v['ours']:.4g} · paper {v['paper']:.4g} (Δ {v['ours'] - v['paper']:+.3g})"
+
+    heads = [c if c == m else f"{c} {m}" for c, m in cells]
+    return [
+        "| row | " + " | ".join(heads) + " |",
+        "|---|" + "---|" * len(heads),
+        *(f"| {r} | " + " | ".join(text(at.get((r, c, m))) for c, m in cells) + " |" for r in rows),
+        "",
+    ]
+
+
 def render_markdown(
     reports: list[SpecReport], header: dict[str, Any], base: Path, signals: dict[str, Any] | None = None
 ) -> str:
@@ -531,6 +543,7 @@ def render_markdown(
         if rep.notes:
             lines.append(f"**Notes:** {rep.notes}")
         lines.append("")
+        lines += values_markdown(rep.values)
         if rep.claims:
             lines += ["| claim | kind | ours | paper's numbers | detail (ours) |", "|---|---|---|---|---|"]
             for c in rep.claims:
@@ -563,89 +576,45 @@ def render_markdown(
     return "\n".join(lines) + "\n"
 
 
-def _img(path: str) -> str:
-    try:
-        data = base64.b64encode(Path(path).read_bytes()).decode()
-    except OSError:
-        return ""
-    name = html.escape(Path(path).name)
-    return f'<img src="data:image/png;base64,{data}" alt="{name}" style="max-width:100%">'
+HTML_STYLE = (
+    "body{font-family:sans-serif;max-width:1200px;margin:auto;padding:0 1em;line-height:1.4}"
+    "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #ccc;padding:3px 6px;"
+    "font-size:13px;vertical-align:top}th{background:#f4f4f4}img{max-width:100%}"
+    "nav{columns:2;font-size:14px}code{background:#f4f4f4;padding:0 3px}"
+)
 
 
-def render_html(reports: list[SpecReport], header: dict[str, Any], base: Path | None = None) -> str:
-    e = html.escape
-    h = header
-    out = [
-        "<!doctype html><html><head><meta charset='utf-8'><title>moegs reproduction report</title>",
-        "<style>body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse}"
-        "td,th{border:1px solid #ccc;padding:3px 6px;font-size:13px;vertical-align:top}"
-        ".held{color:#1a7f37}.failed{color:#c62828}.na{color:#777}</style></head><body>",
-        "<h1>moegs reproduction report</h1>",
-        f"<p>created {e(h['created'])} on {e(h['machine'])}; preset <b>{e(h['preset'])}</b> "
-        f"({e(h['preset_description'])}){' - <b>reduced scale</b>' if h['reduced_scale'] else ''}; "
-        f"device <b>{e(h.get('device', 'cpu'))}</b>; "
-        f"library code version <code>{e(h['moegs_code_version'])}</code>, git "
-        f"<code>{e(str(h['git'].get('commit')))}</code>.</p>",
-        *history_html(h.get("history", [])),
-        "<p>Numbers come only from local result JSONs (ours) and tables/paper (the paper). "
-        "&Delta; = ours - paper, "
-        "only where ours ran on the paper's real scene(s).</p>",
-        "<h2>Summary</h2><table><tr><th>id</th><th>title</th><th>status</th><th>claims (ours)</th></tr>",
-    ]
-    for rep in reports:
-        out.append(
-            f"<tr><td><a href='#{rep.id}'>{rep.id}</a></td><td>{e(rep.title)}</td><td>{e(rep.status)}</td>"
-            f"<td>{e(_claim_counts(rep))}</td></tr>"
-        )
-    out.append("</table>")
-    studies = convergence_studies(base) if base is not None else []
-    if studies:
-        out += ["<h2>Convergence beyond the quick preset</h2>", f"<p>{e(CONVERGENCE_NOTE)}</p>"]
-        for figure, table in studies:
-            out += [_img(str(figure)), f"<pre>{e(table.read_text())}</pre>"]
-    for rep in reports:
-        out += [f"<h2 id='{rep.id}'>{rep.id}: {e(rep.title)}</h2>", f"<p><b>Status:</b> {e(rep.status)}</p>"]
-        if rep.scenes:
-            out.append(f"<p><b>Scenes:</b> {e('; '.join(rep.scenes))}</p>")
-        if rep.notes:
-            out.append(f"<p><b>Notes:</b> {e(rep.notes)}</p>")
-        if rep.claims:
-            heads = ("claim", "kind", "ours", "paper's numbers", "detail")
-            out.append("<table><tr>" + "".join(f"<th>{h}</th>" for h in heads) + "</tr>")
-            for c in rep.claims:
-                cls = {"held": "held", "failed": "failed"}.get(c["ours"], "na")
-                out.append(
-                    f"<tr><td>{e(c['text'])} <i>({e(c['source'])})</i></td>"
-                    f"<td>{e(c.get('kind', 'paper'))}</td><td class='{cls}'>{e(verdict(c))}</td>"
-                    f"<td>{c['paper']}</td><td>{e(c['ours_detail'])}</td></tr>"
-                )
-            out.append("</table>")
-        if rep.deltas:
-            out.append(
-                "<p>Largest deltas: "
-                + "; ".join(
-                    e(f"{d['row']} / {d['column']} / {d['metric']}: {d['delta']:+.3f}") for d in rep.deltas
-                )
-                + "</p>"
-            )
-        ni = {r: s for r, s in rep.rows.items() if s.startswith("not implemented")}
-        if ni:
-            out.append(
-                "<p>Rows not implemented yet:</p><ul>"
-                + "".join(f"<li>{e(r)}: {e(s)}</li>" for r, s in ni.items())
-                + "</ul>"
-            )
-        if rep.failures:
-            out.append(
-                "<p>Failed cells:</p><ul>"
-                + "".join(
-                    f"<li>{e(f['row'])} on {e(str(f['scene']))}: {e(f['detail'])}</li>" for f in rep.failures
-                )
-                + "</ul>"
-            )
-        out += [_img(f) for f in rep.figures]
-    out.append("</body></html>")
-    return "\n".join(out) + "\n"
+def _slug(text: str) -> str:
+    """An anchor for a heading: ``tab03: MoE-GS ...`` -> ``tab03-moe-gs-...``."""
+    words = "".join(ch if ch.isalnum() else " " for ch in text.lower()).split()
+    return "-".join(words)
+
+
+def render_html(markdown_text: str) -> str:
+    """``REPORT.html``: the markdown report rendered as it is (every section, the same numbers), with a
+    table of contents of its sections; figures stay beside it in ``figures/`` and are linked."""
+    from markdown_it import MarkdownIt
+
+    parser = MarkdownIt("commonmark", {"html": False}).enable("table")
+    tokens = parser.parse(markdown_text)
+    toc = []
+    for heading, inline in zip(tokens, tokens[1:], strict=False):
+        if heading.type == "heading_open" and heading.tag in ("h2", "h3"):
+            anchor = _slug(inline.content)
+            heading.attrSet("id", anchor)
+            toc.append((heading.tag, anchor, inline.content))
+    title = "moegs reproduction report"
+    links = "".join(
+        f"<li{' style=margin-left:1em' if tag == 'h3' else ''}><a href='#{a}'>{html.escape(t)}</a></li>"
+        for tag, a, t in toc
+    )
+    return (
+        f"<!doctype html><html><head><meta charset='utf-8'><title>{title}</title>"
+        f"<style>{HTML_STYLE}</style></head><body>\n"
+        f"<nav><b>Contents</b><ul>{links}</ul></nav>\n"
+        + parser.renderer.render(tokens, parser.options, {})
+        + "</body></html>\n"
+    )
 
 
 def _relative(spec: dict[str, Any], base: Path) -> dict[str, Any]:
@@ -676,8 +645,9 @@ def write_report(
     header = _header(preset, run, cells, history, device)
     signals = signals or {}
     paths = {"md": out_dir / "REPORT.md", "html": out_dir / "REPORT.html", "json": out_dir / "summary.json"}
-    write_text_atomic(paths["md"], render_markdown(reports, header, out_dir, signals))
-    write_text_atomic(paths["html"], render_html(reports, header, out_dir))
+    markdown_text = render_markdown(reports, header, out_dir, signals)
+    write_text_atomic(paths["md"], markdown_text)
+    write_text_atomic(paths["html"], render_html(markdown_text))
     summary = {
         "header": header,
         "noise": signals.get("noise", {}),

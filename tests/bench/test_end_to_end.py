@@ -154,7 +154,7 @@ def test_plots_and_report(run):
     assert f"**LaTeX:** `../tables/{spec.id}.tex`" in md  # relative links: the report can move
     assert f"](figures/{spec.id}" in md
     html = (out / "reports" / "REPORT.html").read_text()
-    assert "data:image/png;base64," in html
+    assert f'<img src="figures/{spec.id}' in html and f"## {spec.id}" not in html  # rendered, linked
     summary = json.loads((out / "reports" / "summary.json").read_text())
     rep = next(s for s in summary["specs"] if s["id"] == spec.id)
     assert (

@@ -604,3 +604,28 @@ def test_claims_have_a_kind_and_reports_count_each_apart():
         "paper: 0 held / 1 failed / 1 within noise (0 against the paper); "
         "sanity checks: 1 held / 0 failed / 0 within noise"
     )
+
+
+def test_the_html_report_is_the_markdown_report_with_contents():
+    """REPORT.html renders REPORT.md itself: the same sections (a contents list links each), the same
+    tables, and every table's values ours | paper | Δ."""
+    import re
+
+    from bench.report import render_html, values_markdown
+
+    values = [
+        {"row": "MoE-GS", "column": "Mutant", "metric": "PSNR", "ours": 40.0, "paper": 44.11},
+        {"row": "Grid4D", "column": "Mutant", "metric": "PSNR", "ours": 38.5, "paper": None},
+    ]
+    table = values_markdown(values)
+    assert table[:2] == ["| row | Mutant PSNR |", "|---|---|"]
+    assert table[2] == "| MoE-GS | 40 · paper 44.11 (Δ -4.11) |" and table[3] == "| Grid4D | 38.5 |"
+    summary = ["## Summary", "", "| a | b |", "|---|---|", "| 1 | 2 |", ""]
+    section = ["## tab17: D-NeRF", "", *table, "### detail", "", "![f](f.png)"]
+    md = "\n".join(["# report", "", *summary, *section])
+    page = render_html(md)
+    sections = re.findall(r"^#{2,3} (.+)$", md, flags=re.M)
+    assert re.findall(r"<h[23] id=\"[^\"]+\">(.+?)</h[23]>", page) == sections
+    assert [f"href='#{a}'" in page for a in ("summary", "tab17-d-nerf", "detail")] == [True] * 3
+    assert page.count("<table>") == 2 and "40 · paper 44.11 (Δ -4.11)" in page
+    assert '<img src="f.png" alt="f"' in page
