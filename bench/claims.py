@@ -6,12 +6,14 @@ Column selectors: ``"@mean"`` (the dataset average: the paper's ``Average`` colu
 computed scenes), ``"@scenes"`` (every scene column that has values), or a list of printed columns.
 ``better`` respects each metric's direction (LPIPS, MDC: lower is better).
 
-Noise: a view may carry ``noise`` (metric name -> the seed-to-seed spread measured in this run). A
-comparison whose margin is within it decides nothing: the claim is "within noise" unless another
-comparison fails beyond the noise. An undecided claim still says which way it leans (``leans``): "with the
-paper" when the same comparisons hold at zero noise, "against the paper" when they fail. The paper's own
-numbers carry no noise. A run with no spread at all (one seed and none borrowed) judges nothing: its
-claims are "not judged" (``bench.report``).
+Noise: a view may carry ``noise`` (metric name -> the seed-to-seed spread measured in this run: the
+largest row's on the table's scenes) and ``row_noise`` ((row, metric) -> a row's own spread). A
+comparison is judged against the larger of its rows' own spreads when every row has one, else against the
+scene-wide one (``noise_of``). A comparison whose margin is within it decides nothing: the claim is
+"within noise" unless another comparison fails beyond the noise. An undecided claim still says which
+way it leans (``leans``): "with the paper" when the same comparisons hold at zero noise, "against the
+paper" when they fail. The paper's own numbers carry no noise. A run with no spread at all (one seed and
+none borrowed) judges nothing: its claims are "not judged" (``bench.report``).
 """
 
 from __future__ import annotations
@@ -54,6 +56,7 @@ class _WithoutNoise:
     """A values view without its seed spread (what an undecided claim leans to)."""
 
     noise: dict[str, float] = {}
+    row_noise: dict[tuple[str, str], float] = {}
 
     def __init__(self, view: ValuesView) -> None:
         self._view = view
@@ -78,8 +81,13 @@ def _at(v: ValuesView, column: str, metric_name: str) -> str:
     return column if metric_name in v.metrics_of(column) else f"{column} [{metric_name}]"
 
 
-def noise_of(v: ValuesView, metric_name: str) -> float:
-    """The view's seed-to-seed spread of ``metric_name`` (0 when it has none)."""
+def noise_of(v: ValuesView, metric_name: str, rows: Sequence[str] = ()) -> float:
+    """The seed-to-seed spread a comparison of ``rows`` on ``metric_name`` is judged against: the largest
+    of the rows' own spreads when each has one (``row_noise``), else the view's scene-wide spread (0
+    when it has none)."""
+    own = [getattr(v, "row_noise", {}).get((row, metric_name)) for row in rows]
+    if own and all(x is not None for x in own):
+        return float(max(own))
     return float(getattr(v, "noise", {}).get(metric_name, 0.0))
 
 
@@ -108,7 +116,6 @@ def better(
 ) -> ClaimResult:
     """Row ``a`` is better than row ``b`` (or every row of a list) on every selected column."""
     others = [b] if isinstance(b, str) else list(b)
-    noise = noise_of(v, metric)
     checked, statuses = [], []
     for col in v.columns(columns):
         x = v.get(a, col, metric)
@@ -116,18 +123,19 @@ def better(
             y = v.get(o, col, metric)
             if x is None or y is None:
                 continue
-            checked.append(f"{_at(v, col, metric)}: {_fmt(x)} vs {o} {_fmt(y)} (Δ {x - y:+.3g})")
+            noise = noise_of(v, metric, (a, o))
+            spread = f", seed spread {noise:.3g}" if noise > 0 else ""
+            checked.append(f"{_at(v, col, metric)}: {_fmt(x)} vs {o} {_fmt(y)} (Δ {x - y:+.3g}{spread})")
             statuses.append(_compare(x, y, metric, strict, margin, noise))
     if not checked:
         return ClaimResult(NA, f"no column where {a} and {others} both have {metric}")
     verdict = _verdict(statuses)
     if verdict == FAILED:
         lost = [c for c, s in zip(checked, statuses, strict=True) if s == FAILED]
-        beyond = f" (beyond the seed spread {noise:.3g})" if noise > 0 else ""
-        return ClaimResult(FAILED, f"{a} not better on " + "; ".join(lost) + beyond)
+        return ClaimResult(FAILED, f"{a} not better on " + "; ".join(lost))
     if verdict == NOISE:
         close = [c for c, s in zip(checked, statuses, strict=True) if s == NOISE]
-        return ClaimResult(NOISE, f"margin within the seed spread {noise:.3g} on " + "; ".join(close))
+        return ClaimResult(NOISE, "margin within the seed spread on " + "; ".join(close))
     return ClaimResult(
         HELD,
         f"{a} better on {len(checked)} comparison(s): "
@@ -166,9 +174,9 @@ def monotone(
     v: ValuesView, rows: Sequence[str], columns: Sequence[str], metric: str = "PSNR", tolerance: float = 0.0
 ) -> ClaimResult:
     """Along ``columns`` (in order) each row's value never gets better by more than ``tolerance``."""
-    noise = noise_of(v, metric)
     bad, close, seen = [], [], 0
     for row in rows:
+        noise = noise_of(v, metric, (row,))
         vals = [(c, v.get(row, c, metric)) for c in columns]
         vals = [(c, x) for c, x in vals if x is not None]
         for (c0, x0), (c1, x1) in zip(vals, vals[1:], strict=False):
@@ -183,7 +191,7 @@ def monotone(
     if bad:
         return ClaimResult(FAILED, "; ".join(bad))
     if close:
-        return ClaimResult(NOISE, f"within the seed spread {noise:.3g}: " + "; ".join(close))
+        return ClaimResult(NOISE, "within the seed spread: " + "; ".join(close))
     return ClaimResult(HELD, f"{seen} step(s) non-increasing")
 
 
@@ -196,7 +204,7 @@ def within(
     columns: str | Sequence[str] = "@mean",
 ) -> ClaimResult:
     """``|a - b| <= tolerance`` on every selected column (e.g. pruning keeps PSNR)."""
-    noise = noise_of(v, metric)
+    noise = noise_of(v, metric, (a, b))
     checked, bad, close = 0, [], []
     for col in v.columns(columns):
         x, y = v.get(a, col, metric), v.get(b, col, metric)
@@ -207,7 +215,7 @@ def within(
         if abs(x - y) > tolerance + noise:
             bad.append(gap)
         elif abs(x - y) > tolerance:
-            close.append(f"{gap} by less than the seed spread")
+            close.append(f"{gap} by less than the seed spread {noise:.3g}")
     if not checked:
         return ClaimResult(NA, f"{a} / {b} have no common {metric}")
     if bad:
@@ -228,8 +236,7 @@ def exceeds(
     pairs = [(o, y) for o, y in pairs if y is not None]
     if not pairs:
         return ClaimResult(NA, f"none of {list(others)} has {column_b}")
-    noise = noise_of(v, metric)
-    statuses = [_compare(x, y, metric, True, 0.0, noise) for _, y in pairs]
+    statuses = [_compare(x, y, metric, True, 0.0, noise_of(v, metric, (a, o))) for o, y in pairs]
     detail = f"{a} {column_a} {_fmt(x)} vs " + ", ".join(f"{o} {_fmt(y)}" for o, y in pairs)
     return ClaimResult(_verdict(statuses), detail)
 

@@ -303,8 +303,9 @@ def noise_markdown(noise: dict[str, Any]) -> list[str]:
     if not scenes:
         return ["- **Noise**: no row finished two seeds and none was borrowed: claims are not judged."]
     lines = [
-        "- **Noise**: a claim is judged against the seed-to-seed spread (max - min over seeds of one row) "
-        "of its table's scenes: a scene's own where its cells were trained with several seeds, else the "
+        "- **Noise**: a comparison of rows that trained with several seeds is judged against the larger of "
+        "their own seed-to-seed spreads (max - min over seeds); any other against the largest spread of its "
+        "table's scenes: a scene's own where its cells were trained with several seeds, else the "
         "largest spread measured on a stand-in; a scene this run trains once borrows the "
         f"{NOISE_PROXY} run's spread on it where there is one (marked)"
         + (

@@ -277,6 +277,18 @@ def noise_for(noise: dict[str, Any], scene_names: list[str]) -> dict[str, float]
     return out
 
 
+def row_noise_for(noise: dict[str, Any], scene_names: list[str]) -> dict[tuple[str, str], float]:
+    """``{(row, metric): spread}``: the seed spreads rows measured themselves on ``scene_names`` (a row's
+    largest over the scenes), for claims that compare those rows (``bench.claims.noise_of``)."""
+    out: dict[tuple[str, str], float] = {}
+    for scene in scene_names:
+        for row, spreads in ((noise.get("scenes") or {}).get(scene, {}).get("rows") or {}).items():
+            for name, spread in spreads.items():
+                if spread is not None:
+                    out[(row, name)] = max(out.get((row, name), 0.0), spread)
+    return out
+
+
 def _build_label(artifact: dict[str, Any]) -> str:
     """What a build made, in a few words: ``stg``, ``vapr router: ex4dgs+stg``, ``MoDE: fourdgs+ed3dgs``."""
     params = artifact.get("params", {})

@@ -101,11 +101,20 @@ def _combine(slots: list[Slot], sr: SlotResults, metric_name: str, how: str = "m
 class SpecValues:
     """Our values of one spec (a ``ValuesView``) plus the paper's (``.paper``)."""
 
-    def __init__(self, plan: SpecPlan, workspace: Workspace, noise: dict[str, float] | None = None) -> None:
+    def __init__(
+        self,
+        plan: SpecPlan,
+        workspace: Workspace,
+        noise: dict[str, float] | None = None,
+        row_noise: dict[tuple[str, str], float] | None = None,
+    ) -> None:
         self.plan = plan
         self.noise = dict(noise or {})
-        """Seed-to-seed spread per metric name (``bench.signals.seed_noise``): claims within it are
-        "within noise"."""
+        """Seed-to-seed spread per metric name (``bench.signals.noise_for``, the largest row's of the
+        spec's scenes): claims within it are "within noise"."""
+        self.row_noise = dict(row_noise or {})
+        """``(row, metric)`` -> the spread a row measured itself (``bench.signals.row_noise_for``): a
+        comparison of rows that all have one is judged against theirs (``bench.claims.noise_of``)."""
         self.spec = plan.spec
         self.results = SlotResults(plan, workspace)
         self.paper_table: PaperTable | None = load_paper_numbers(self.spec.paper) if self.spec.paper else None

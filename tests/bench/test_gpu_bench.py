@@ -362,7 +362,7 @@ def test_a_run_names_its_device_in_the_report_and_the_run_record(tmp_path):
 
     paths = write_report([], get_preset("tiny"), tmp_path, device="cuda (1 x NVIDIA H100 80GB HBM3)")
     assert "- device: **cuda (1 x NVIDIA H100 80GB HBM3)**" in paths["md"].read_text()
-    assert "device <b>cuda (1 x NVIDIA H100 80GB HBM3)</b>" in paths["html"].read_text()
+    assert "device: <strong>cuda (1 x NVIDIA H100 80GB HBM3)</strong>" in paths["html"].read_text()
     identity = {"specs": ["tab17"], "keys_digest": "d", "tasks": 5}
     counts = {
         "builds_run": 1,

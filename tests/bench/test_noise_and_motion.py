@@ -629,3 +629,14 @@ def test_the_html_report_is_the_markdown_report_with_contents():
     assert [f"href='#{a}'" in page for a in ("summary", "tab17-d-nerf", "detail")] == [True] * 3
     assert page.count("<table>") == 2 and "40 · paper 44.11 (Δ -4.11)" in page
     assert '<img src="f.png" alt="f"' in page
+
+
+def test_a_comparison_is_judged_against_its_rows_own_spreads():
+    """Two rows that measured their own spread are compared against the larger of the two, not against
+    the largest row of the scene; a row without one falls back to the scene-wide spread."""
+    view = View(psnr(A=28.5, B=28.0, C=28.0), {"PSNR": 0.9})
+    view.row_noise = {("A", "PSNR"): 0.1, ("B", "PSNR"): 0.3}
+    assert better(view, "A", "B").status == HELD  # 0.5 dB beyond the rows' 0.3
+    assert better(view, "A", "C").status == NOISE  # C has no spread of its own: the scene's 0.9
+    assert "seed spread 0.3" in better(view, "A", "B").detail
+    assert within(view, "A", "B", tolerance=0.25).status == NOISE  # |0.5| - 0.25 < 0.3
