@@ -598,10 +598,12 @@ def render_html(markdown_text: str) -> str:
 
     parser = MarkdownIt("commonmark", {"html": False}).enable("table")
     tokens = parser.parse(markdown_text)
-    toc = []
+    toc: list[tuple[str, str, str]] = []
     for heading, inline in zip(tokens, tokens[1:], strict=False):
         if heading.type == "heading_open" and heading.tag in ("h2", "h3"):
-            anchor = _slug(inline.content)
+            anchor = base = _slug(inline.content)
+            while any(anchor == a for _, a, _ in toc):  # a title used twice gets its own anchor
+                anchor = f"{base}-{sum(a.startswith(base) for _, a, _ in toc) + 1}"
             heading.attrSet("id", anchor)
             toc.append((heading.tag, anchor, inline.content))
     title = "moegs reproduction report"
@@ -609,11 +611,13 @@ def render_html(markdown_text: str) -> str:
         f"<li{' style=margin-left:1em' if tag == 'h3' else ''}><a href='#{a}'>{html.escape(t)}</a></li>"
         for tag, a, t in toc
     )
+    body = parser.renderer.render(tokens, parser.options, {})
+    head, sep, rest = body.partition("</h1>\n")  # the contents go under the title
+    nav = f"<nav><b>Contents</b><ul>{links}</ul></nav>\n"
     return (
         f"<!doctype html><html><head><meta charset='utf-8'><title>{title}</title>"
         f"<style>{HTML_STYLE}</style></head><body>\n"
-        f"<nav><b>Contents</b><ul>{links}</ul></nav>\n"
-        + parser.renderer.render(tokens, parser.options, {})
+        + (head + sep + nav + rest if sep else nav + body)
         + "</body></html>\n"
     )
 

@@ -621,12 +621,12 @@ def test_the_html_report_is_the_markdown_report_with_contents():
     assert table[:2] == ["| row | Mutant PSNR |", "|---|---|"]
     assert table[2] == "| MoE-GS | 40 · paper 44.11 (Δ -4.11) |" and table[3] == "| Grid4D | 38.5 |"
     summary = ["## Summary", "", "| a | b |", "|---|---|", "| 1 | 2 |", ""]
-    section = ["## tab17: D-NeRF", "", *table, "### detail", "", "![f](f.png)"]
+    section = ["## tab17: D-NeRF", "", *table, "### detail", "", "![f](f.png)", "", "### detail"]
     md = "\n".join(["# report", "", *summary, *section])
     page = render_html(md)
     sections = re.findall(r"^#{2,3} (.+)$", md, flags=re.M)
     assert re.findall(r"<h[23] id=\"[^\"]+\">(.+?)</h[23]>", page) == sections
-    assert [f"href='#{a}'" in page for a in ("summary", "tab17-d-nerf", "detail")] == [True] * 3
+    assert [f"href='#{a}'" in page for a in ("summary", "tab17-d-nerf", "detail", "detail-2")] == [True] * 4
     assert page.count("<table>") == 2 and "40 · paper 44.11 (Δ -4.11)" in page
     assert '<img src="f.png" alt="f"' in page
 
