@@ -18,6 +18,7 @@ none borrowed) judges nothing: its claims are "not judged" (``bench.report``).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, Protocol
@@ -41,6 +42,7 @@ class ClaimResult:
     status: str  # HELD | FAILED | NOISE | NA | NOT_JUDGED
     detail: str
     leans: str | None = None  # a NOISE verdict's direction: WITH_PAPER or AGAINST_PAPER
+    seeds: int | None = None  # a NOISE verdict: seeds per row that would decide it (``seeds_to_decide``)
 
     @property
     def held(self) -> bool:
@@ -91,13 +93,26 @@ def noise_of(v: ValuesView, metric_name: str, rows: Sequence[str] = ()) -> float
     return float(getattr(v, "noise", {}).get(metric_name, 0.0))
 
 
-def _compare(x: float, y: float, metric_name: str, strict: bool, margin: float, noise: float) -> str:
-    """HELD / FAILED, or NOISE when ``x - y`` is within ``noise`` of the decision boundary."""
+def _compare(
+    x: float, y: float, metric_name: str, strict: bool, margin: float, noise: float
+) -> tuple[str, float]:
+    """``(HELD / FAILED, or NOISE when x - y is within noise of the decision boundary; the distance from
+    the boundary)``."""
     gain = (x - y) if metric(metric_name).higher_is_better else (y - x)
     boundary = margin if strict else -margin
-    if noise > 0 and abs(gain - boundary) <= noise:
-        return NOISE
-    return HELD if (gain > boundary if strict else gain >= boundary) else FAILED
+    distance = abs(gain - boundary)
+    if noise > 0 and distance <= noise:
+        return NOISE, distance
+    return (HELD if (gain > boundary if strict else gain >= boundary) else FAILED), distance
+
+
+def seeds_to_decide(undecided: Sequence[tuple[float, float]]) -> int | None:
+    """Seeds per row that would decide every undecided comparison ``(distance from its boundary, seed
+    spread)`` if the spread of a mean over n seeds shrinks as 1/sqrt(n): the largest
+    ``ceil((spread / distance)^2)``; None when one sits on its boundary (no number of seeds decides it)."""
+    if not undecided or any(d <= 0 for d, _ in undecided):
+        return None
+    return max(math.ceil(round((s / d) ** 2, 6)) for d, s in undecided)  # 9.000000001 is 9
 
 
 def _verdict(statuses: list[str]) -> str:
@@ -116,7 +131,7 @@ def better(
 ) -> ClaimResult:
     """Row ``a`` is better than row ``b`` (or every row of a list) on every selected column."""
     others = [b] if isinstance(b, str) else list(b)
-    checked, statuses = [], []
+    checked, statuses, undecided = [], [], []
     for col in v.columns(columns):
         x = v.get(a, col, metric)
         for o in others:
@@ -126,7 +141,10 @@ def better(
             noise = noise_of(v, metric, (a, o))
             spread = f", seed spread {noise:.3g}" if noise > 0 else ""
             checked.append(f"{_at(v, col, metric)}: {_fmt(x)} vs {o} {_fmt(y)} (Δ {x - y:+.3g}{spread})")
-            statuses.append(_compare(x, y, metric, strict, margin, noise))
+            status, distance = _compare(x, y, metric, strict, margin, noise)
+            statuses.append(status)
+            if status == NOISE:
+                undecided.append((distance, noise))
     if not checked:
         return ClaimResult(NA, f"no column where {a} and {others} both have {metric}")
     verdict = _verdict(statuses)
@@ -135,7 +153,8 @@ def better(
         return ClaimResult(FAILED, f"{a} not better on " + "; ".join(lost))
     if verdict == NOISE:
         close = [c for c, s in zip(checked, statuses, strict=True) if s == NOISE]
-        return ClaimResult(NOISE, "margin within the seed spread on " + "; ".join(close))
+        detail = "margin within the seed spread on " + "; ".join(close)
+        return ClaimResult(NOISE, detail, seeds=seeds_to_decide(undecided))
     return ClaimResult(
         HELD,
         f"{a} better on {len(checked)} comparison(s): "
@@ -167,14 +186,21 @@ def order(
     parts = [better(v, rows[i], rows[i + 1], metric, columns, strict) for i in range(len(rows) - 1)]
     if any(p.status == NA for p in parts):
         return ClaimResult(NA, "; ".join(p.detail for p in parts if p.status == NA))
-    return ClaimResult(_verdict([p.status for p in parts]), " | ".join(p.detail for p in parts))
+    verdict = _verdict([p.status for p in parts])
+    undecided = [p for p in parts if p.status == NOISE]
+    seeds = (
+        None if any(p.seeds is None for p in undecided) else max((p.seeds for p in undecided), default=None)
+    )
+    return ClaimResult(
+        verdict, " | ".join(p.detail for p in parts), seeds=seeds if verdict == NOISE else None
+    )
 
 
 def monotone(
     v: ValuesView, rows: Sequence[str], columns: Sequence[str], metric: str = "PSNR", tolerance: float = 0.0
 ) -> ClaimResult:
     """Along ``columns`` (in order) each row's value never gets better by more than ``tolerance``."""
-    bad, close, seen = [], [], 0
+    bad, close, seen, undecided = [], [], 0, []
     for row in rows:
         noise = noise_of(v, metric, (row,))
         vals = [(c, v.get(row, c, metric)) for c in columns]
@@ -186,12 +212,15 @@ def monotone(
                 bad.append(step)
             elif _is_better(x1, x0, metric, strict=True, margin=tolerance):
                 close.append(step)
+                undecided.append((abs(x1 - x0) - tolerance, noise))
     if not seen:
         return ClaimResult(NA, f"fewer than two of {list(columns)} computed")
     if bad:
         return ClaimResult(FAILED, "; ".join(bad))
     if close:
-        return ClaimResult(NOISE, "within the seed spread: " + "; ".join(close))
+        return ClaimResult(
+            NOISE, "within the seed spread: " + "; ".join(close), seeds=seeds_to_decide(undecided)
+        )
     return ClaimResult(HELD, f"{seen} step(s) non-increasing")
 
 
@@ -205,7 +234,7 @@ def within(
 ) -> ClaimResult:
     """``|a - b| <= tolerance`` on every selected column (e.g. pruning keeps PSNR)."""
     noise = noise_of(v, metric, (a, b))
-    checked, bad, close = 0, [], []
+    checked, bad, close, undecided = 0, [], [], []
     for col in v.columns(columns):
         x, y = v.get(a, col, metric), v.get(b, col, metric)
         if x is None or y is None:
@@ -216,12 +245,13 @@ def within(
             bad.append(gap)
         elif abs(x - y) > tolerance:
             close.append(f"{gap} by less than the seed spread {noise:.3g}")
+            undecided.append((abs(x - y) - tolerance, noise))
     if not checked:
         return ClaimResult(NA, f"{a} / {b} have no common {metric}")
     if bad:
         return ClaimResult(FAILED, "; ".join(bad))
     if close:
-        return ClaimResult(NOISE, "; ".join(close))
+        return ClaimResult(NOISE, "; ".join(close), seeds=seeds_to_decide(undecided))
     return ClaimResult(HELD, f"{a} within {tolerance} of {b}")
 
 
@@ -236,9 +266,12 @@ def exceeds(
     pairs = [(o, y) for o, y in pairs if y is not None]
     if not pairs:
         return ClaimResult(NA, f"none of {list(others)} has {column_b}")
-    statuses = [_compare(x, y, metric, True, 0.0, noise_of(v, metric, (a, o))) for o, y in pairs]
+    noises = [noise_of(v, metric, (a, o)) for o, _ in pairs]
+    compared = [_compare(x, y, metric, True, 0.0, n) for (_, y), n in zip(pairs, noises, strict=True)]
+    verdict = _verdict([status for status, _ in compared])
+    undecided = [(d, n) for (status, d), n in zip(compared, noises, strict=True) if status == NOISE]
     detail = f"{a} {column_a} {_fmt(x)} vs " + ", ".join(f"{o} {_fmt(y)}" for o, y in pairs)
-    return ClaimResult(_verdict(statuses), detail)
+    return ClaimResult(verdict, detail, seeds=seeds_to_decide(undecided) if verdict == NOISE else None)
 
 
 def spread(

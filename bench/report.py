@@ -105,8 +105,15 @@ NO_BASIS = (
 
 
 def verdict(claim: dict[str, Any]) -> str:
-    """A report's claim verdict as a reader sees it: ``within noise, against the paper``."""
-    return f"{claim['ours']}, {claim['ours_leans']}" if claim.get("ours_leans") else claim["ours"]
+    """A report's claim verdict as a reader sees it: ``within noise, against the paper (about 9 seeds
+    per row would decide it)``."""
+    if not claim.get("ours_leans"):
+        return claim["ours"]
+    need = ""
+    if "ours_seeds_to_decide" in claim:
+        seeds = claim["ours_seeds_to_decide"]
+        need = f" (about {seeds} seeds per row would decide it)" if seeds else " (it sits on the boundary)"
+    return f"{claim['ours']}, {claim['ours_leans']}{need}"
 
 
 KIND_LABELS = {"paper": "paper", "sanity": "sanity checks", "suite": "dynamic-region twins"}
@@ -151,6 +158,7 @@ def spec_report(
                 "source": claim.source,
                 "ours": ours.status,
                 "ours_leans": ours.leans,
+                "ours_seeds_to_decide": ours.seeds,
                 "ours_detail": ours.detail,
                 "paper": paper.status if paper else NA,
                 "paper_detail": paper.detail if paper else "the paper prints no numbers for this",

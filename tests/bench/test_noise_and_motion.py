@@ -24,6 +24,7 @@ from bench.claims import (
     exceeds,
     monotone,
     order,
+    seeds_to_decide,
     spread,
     within,
 )
@@ -640,3 +641,15 @@ def test_a_comparison_is_judged_against_its_rows_own_spreads():
     assert better(view, "A", "C").status == NOISE  # C has no spread of its own: the scene's 0.9
     assert "seed spread 0.3" in better(view, "A", "B").detail
     assert within(view, "A", "B", tolerance=0.25).status == NOISE  # |0.5| - 0.25 < 0.3
+
+
+def test_an_undecided_claim_says_how_many_seeds_would_decide_it():
+    """A margin d inside a seed spread s: a mean over n seeds has a spread of about s / sqrt(n), so
+    ceil((s / d)^2) seeds decide it; the claim's worst comparison counts; on the boundary none does."""
+    claim = Claim("c", "A beats B", "better", {"a": "A", "b": ["B", "C"]})
+    result = evaluate(claim, View(psnr(A=28.2, B=28.0, C=28.1), {"PSNR": 0.3}))
+    assert result.status == NOISE and result.seeds == 9  # C: (0.3 / 0.1)^2
+    assert seeds_to_decide([(0.0, 0.3)]) is None and seeds_to_decide([(0.25, 0.3)]) == 2
+    row = {"ours": NOISE, "ours_leans": WITH_PAPER, "ours_seeds_to_decide": 9}
+    assert verdict(row) == "within noise, with the paper (about 9 seeds per row would decide it)"
+    assert verdict({**row, "ours_seeds_to_decide": None}).endswith("(it sits on the boundary)")
