@@ -98,6 +98,12 @@ def _status(values: SpecValues, preset: BenchPreset) -> str:
     return "; ".join(parts)
 
 
+TIMINGS = ("FPS", "Time")
+"""Metrics that are timings: a paper claim on them is not judged from separate cells (``UNPAIRED``)."""
+UNPAIRED = (
+    "a timing of separate cells, not a ratio measured in paired rounds, on another device than the paper's "
+    "GPU (python -m bench.single_pass times single pass against separate renders in paired rounds)"
+)
 NO_BASIS = (
     "no seed spread was measured or borrowed for these scenes (each row trained once): a difference "
     "cannot be told from noise"
@@ -148,7 +154,10 @@ def spec_report(
     spec = values.spec
     claims = []
     for claim in spec.checked_claims():
-        ours = evaluate(claim, values) if values.noise else ClaimResult(NOT_JUDGED, NO_BASIS)
+        if claim.kind == "paper" and claim.args.get("metric") in TIMINGS:
+            ours = ClaimResult(NOT_JUDGED, UNPAIRED)
+        else:
+            ours = evaluate(claim, values) if values.noise else ClaimResult(NOT_JUDGED, NO_BASIS)
         paper = evaluate(claim, values.paper) if values.paper_table is not None else None
         claims.append(
             {

@@ -653,3 +653,24 @@ def test_an_undecided_claim_says_how_many_seeds_would_decide_it():
     row = {"ours": NOISE, "ours_leans": WITH_PAPER, "ours_seeds_to_decide": 9}
     assert verdict(row) == "within noise, with the paper (about 9 seeds per row would decide it)"
     assert verdict({**row, "ours_seeds_to_decide": None}).endswith("(it sits on the boundary)")
+
+
+def test_a_paper_claim_on_timings_of_separate_cells_is_not_judged(tmp_path):
+    """Table VII's FPS claims compare timings of separate cells on our CPU: not judged, with the reason;
+    its memory claims (sanity checks) and image claims are."""
+    from bench.plan import make_plan
+    from bench.presets import get_preset
+    from bench.report import UNPAIRED, spec_report
+    from bench.store import Workspace
+    from bench.values import SpecValues
+
+    plan = make_plan([get_spec("tab07")], get_preset("tiny"))
+    values = SpecValues(plan.specs[0], Workspace(tmp_path), noise={"PSNR": 0.1})
+    claims = {c["id"]: c for c in spec_report(values, get_preset("tiny")).claims}
+    assert (
+        claims["single-pass-fps"]["ours"] == NOT_JUDGED
+        and claims["single-pass-fps"]["ours_detail"] == UNPAIRED
+    )
+    assert (
+        claims["pruning-memory"]["ours"] != NOT_JUDGED and claims["pruning-keeps-psnr"]["ours"] != NOT_JUDGED
+    )
