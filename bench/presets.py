@@ -228,6 +228,7 @@ PRESETS: dict[str, BenchPreset] = by_name(
             speed_views=1,
             speed_warmup=1,
             speed_repeats=2,
+            own_outputs=True,  # never over the committed quick outputs
             trajectory_gaussians=64,
             trajectory_steps=6,
             mdc_views=2,
@@ -251,9 +252,14 @@ PRESETS: dict[str, BenchPreset] = by_name(
 )
 
 
+DEFAULT_PRESET = "quick"
+"""The preset of ``python -m bench.all`` without a preset flag or ``$MOEGS_PRESET``: the CPU preset of
+about an hour, never the paper's scale by accident."""
+
+
 def default_preset() -> str:
-    """``$MOEGS_PRESET`` if set, else ``paper`` (``python -m bench.all`` without ``--quick``)."""
-    return os.environ.get(PRESET_ENV, "paper")
+    """``$MOEGS_PRESET`` if set (and not empty), else ``DEFAULT_PRESET`` (``quick``)."""
+    return os.environ.get(PRESET_ENV) or DEFAULT_PRESET
 
 
 def get_preset(name: str | None = None) -> BenchPreset:

@@ -86,7 +86,7 @@ def test_plugin_is_a_table_x_candidate(plugin, tmp_path):
     cmd += ["--workspace", str(tmp_path / "ws"), "--out", str(tmp_path / "out"), "--no-progress"]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=1800)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    subset = tmp_path / "out" / "reports" / "subsets" / "tab10"
+    subset = tmp_path / "out" / "reports" / "subsets" / "tiny-tab10"
     latex = (subset / "tables" / "tab10.tex").read_text()
     row = next(line for line in latex.splitlines() if line.startswith(r"+ linear"))
     assert re.search(r"\d+\.\d+", row), row  # our number is in the table

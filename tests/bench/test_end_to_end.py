@@ -268,7 +268,7 @@ def test_cli_table_module(run):
         timeout=120,
     )
     assert proc.returncode == 0, proc.stderr[-2000:]
-    subset = out / "reports" / "subsets" / "tab17"  # a subset run leaves the full report alone
+    subset = out / "reports" / "subsets" / "tiny-tab17"  # a subset run leaves the full report alone
     assert (subset / "tables" / "tab17.tex").is_file() and (subset / "reports" / "REPORT.md").is_file()
     assert not (out / "reports" / "REPORT.md").exists() and not (out / "tables").exists()
 
@@ -286,7 +286,7 @@ def test_cli_reports_failed_cells(run, monkeypatch, capsys):
     args = ["--tables", "17", "--preset", "tiny", "--workspace", str(run["ws"].root), "--out", str(out)]
     assert main([*args, "--no-progress"]) == 1
     assert "1 task(s) failed" in capsys.readouterr().err
-    assert (out / "reports" / "subsets" / "tab17" / "reports" / "REPORT.md").is_file()
+    assert (out / "reports" / "subsets" / "tiny-tab17" / "reports" / "REPORT.md").is_file()
 
 
 QUALITY = ("psnr", "ssim", "lpips")

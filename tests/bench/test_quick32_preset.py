@@ -39,3 +39,4 @@ def test_a_full_run_keeps_its_own_folders(tmp_path):
 def test_where_outputs_go_is_not_in_any_key():
     assert "own_outputs" not in QUICK32.to_dict()
     assert QUICK32.separate_outputs and not QUICK.separate_outputs and get_preset("standard").separate_outputs
+    assert get_preset("tiny").separate_outputs  # a tiny run never writes over the committed quick outputs

@@ -148,7 +148,7 @@ def test_reports_list_the_runs_of_their_plan(tmp_path, monkeypatch):
     monkeypatch.setattr(
         bench.runner, "execute", lambda *a, **k: RunSummary(builds_run=4, evals_run=3, seconds=30)
     )
-    report = tmp_path / "out" / "reports" / "subsets" / "tab17" / "reports"
+    report = tmp_path / "out" / "reports" / "subsets" / "tiny-tab17" / "reports"
     assert main(_tab17(tmp_path)) == 0
     [entry] = read_runs(tmp_path / "ws")
     assert (entry["builds_run"], entry["evals_run"], entry["cells_seconds"]) == (4, 3, 30.0)
