@@ -1,4 +1,5 @@
-"""Reproduce the paper's tables and figures: ``python -m bench.all [--quick] [--tables 3,17] [--jobs N]``.
+"""Reproduce the paper's tables and figures: ``python -m bench.all [--tiny|--quick|--standard|--paper]
+[--tables 3,17] [--jobs N]``.
 
 Steps: plan the selected specs (rows x scenes x seeds), build the missing artefacts and evaluate the
 missing cells (local process pool or Slurm via submitit; finished work is reused), then write
@@ -17,14 +18,20 @@ Datasets without real data under ``MOEGS_DATA`` run on synthetic stand-ins; the 
 at the start, and ``--require-real`` makes it an error instead.
 
 ``--tables`` accepts ``tab03``, ``3``, ``III``, ``repro-tab3`` (tox env names) and figure ids;
-``python -m bench.tab03`` is the same as ``--tables tab03``. The preset is ``--preset`` / ``--quick``,
-else ``$MOEGS_PRESET``, else ``paper``.
+``python -m bench.tab03`` is the same as ``--tables tab03``. The preset is ``--preset NAME`` or one of
+its shorthands ``--tiny``, ``--quick``, ``--standard``, ``--paper`` (two that name different presets are
+an error), else ``$MOEGS_PRESET``, else ``quick``.
+
+Before any work the run prints its plan (builds and evaluations to compute, and those cached) and an
+estimate of its time from the task times the workspace recorded (``bench.forecast``: the same tasks under
+older code, else similar ones, else 'unknown').
 
 ``--device auto|cpu|cuda`` (``auto``: CUDA when torch sees a GPU) is part of every cell's key, so CPU and
 GPU numbers never mix. On CUDA the local executor runs ``--jobs-per-gpu`` workers on each of ``--gpus``
 GPUs (default: every visible one); on Slurm ``--slurm-gpus`` makes the tasks CUDA tasks. ``--dry-run``
-plans and prints each table's builds with an estimate of H100-hours and CPU-hours (``bench.estimate``);
-``--preset paper`` on the CPU runs only with an explicit ``--device cpu``.
+prints that plan, then each table's builds with an estimate of H100-hours and CPU-hours
+(``bench.estimate``), and runs nothing. ``--preset paper`` on the CPU (no CUDA, or ``--device cpu``) prints
+the plan and its estimate and stops unless ``--yes`` is given.
 """
 
 from __future__ import annotations
@@ -35,9 +42,12 @@ import sys
 import time
 from pathlib import Path
 
-from bench.presets import PRESET_ENV, PRESETS, default_preset, get_preset
+from bench.presets import DEFAULT_PRESET, PRESET_ENV, PRESETS, default_preset, get_preset
 from bench.registry import get_spec, list_specs, parse_selection
 from moegs.cli_types import non_negative_int, positive_float, positive_int
+
+SHORTHANDS = ("tiny", "quick", "standard", "paper")
+"""Presets with a flag of their own (``--quick`` is ``--preset quick``)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -56,9 +66,17 @@ def build_parser() -> argparse.ArgumentParser:
         "--preset",
         choices=sorted(PRESETS),
         default=None,
-        help=f"scale preset (default: ${PRESET_ENV} or 'paper'; now {default_preset()!r})",
+        help=f"scale preset (default: ${PRESET_ENV} or {DEFAULT_PRESET!r}; now {default_preset()!r})",
     )
-    p.add_argument("--quick", action="store_true", help="same as --preset quick")
+    for name in SHORTHANDS:
+        p.add_argument(
+            f"--{name}", dest="shorthands", action="append_const", const=name, help=f"same as --preset {name}"
+        )
+    p.add_argument(
+        "--yes",
+        action="store_true",
+        help="run --preset paper on the CPU (without it such a run prints its plan and estimate and stops)",
+    )
     p.add_argument(
         "--executor",
         choices=["local", "slurm", "submitit-local"],
@@ -134,6 +152,23 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def choose_preset(args: argparse.Namespace) -> str:
+    """The preset the command line names (``--preset`` or a shorthand), else ``$MOEGS_PRESET``, else
+    ``quick``; ``ValueError`` (one line) when flags name different presets or the variable an unknown one."""
+    named = [(f"--{n}", n) for n in args.shorthands or []]
+    if args.preset:
+        named.append((f"--preset {args.preset}", args.preset))
+    if len({name for _, name in named}) > 1:
+        flags = " and ".join(dict.fromkeys(flag for flag, _ in named))
+        raise ValueError(f"{flags} name different presets; give one")
+    if named:
+        return named[0][1]
+    name = default_preset()
+    if name not in PRESETS:
+        raise ValueError(f"${PRESET_ENV}={name}: unknown bench preset; valid: {', '.join(PRESETS)}")
+    return name
+
+
 def list_table() -> str:
     rows = []
     for sid in list_specs():
@@ -193,6 +228,15 @@ def choose_device(args: argparse.Namespace) -> tuple[str, list[int]]:
             raise ValueError(f"--gpus {args.gpus} with --device {args.device}: that names one GPU")
         return "cuda", [device.index]
     return "cuda", list(range(args.gpus or count))
+
+
+def workers(args: argparse.Namespace, kind: str, gpus: list[int]) -> int | None:
+    """Tasks the local executor runs at once (None on Slurm, where the cluster decides)."""
+    if args.executor != "local":
+        return None
+    if kind == "cuda":
+        return len(gpus) * (args.jobs_per_gpu or 1) or None
+    return args.jobs or os.cpu_count() or 1
 
 
 def device_line(args: argparse.Namespace, kind: str, gpus: list[int]) -> str:
@@ -321,8 +365,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyError as err:
         print(f"error: {err.args[0]}", file=sys.stderr)
         return 2
-    preset = get_preset("quick" if args.quick else args.preset)
     try:
+        preset = get_preset(choose_preset(args))
         device, gpus = choose_device(args)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
@@ -378,37 +422,39 @@ def main(argv: list[str] | None = None) -> int:
         if args.require_real:
             print("[bench] error: --require-real and real data is missing (see above)", file=sys.stderr)
             return 2
+    on = device_line(args, device, gpus)
+    shown = ", ".join(selected) if len(selected) <= 6 else f"{', '.join(selected[:5])} ..."
+    print(
+        f"[bench] preset {preset.name}, device {on}; {len(selected)} spec(s): {shown}; "
+        f"workspace {workspace.root}",
+        file=sys.stderr,
+    )
+    if not args.no_run:
+        from bench.forecast import forecast, plan_lines
+
+        lines = plan_lines(
+            forecast(run_plan, workspace), workers(args, device, gpus), workspace.root, preset.name, device
+        )
+        for line in lines:
+            print(f"[bench] {line}", file=sys.stderr)
     if args.dry_run:
         from bench.estimate import render
 
         print(render(run_plan, device))
         return 0
-    if (
-        preset.name == "paper"
-        and device == "cpu"
-        and args.device.strip().lower() != "cpu"
-        and not args.no_run
-    ):
+    if preset.name == "paper" and device == "cpu" and not args.no_run and not args.yes:
         from bench.estimate import plan_estimates
 
         total = plan_estimates(run_plan)[1]
         print(
             f"error: --preset paper on the CPU: about {total.cpu_hours:.0f} CPU-hours "
-            f"({total.gpu_hours:.0f} H100-hours on a GPU) for the selected tables (--dry-run lists them); "
-            "pass --device cpu to run it on the CPU anyway",
+            f"({total.gpu_hours:.0f} H100-hours on a GPU, bench/estimate.py) for the selected tables "
+            "(--dry-run lists them); pass --yes to run it on the CPU anyway",
             file=sys.stderr,
         )
         return 2
-    on = device_line(args, device, gpus)
     subset = set(selected) != set(complete)
     tables_dir, reports_dir = output_dirs(args.out, preset, selected, complete)
-    n_eval = len(run_plan.eval_tasks())
-    n_build = sum(len(level) for level in run_plan.build_levels())
-    print(
-        f"[bench] preset {preset.name}, device {on}; {len(selected)} spec(s); {n_build} build task(s), "
-        f"{n_eval} eval task(s); workspace {workspace.root}",
-        file=sys.stderr,
-    )
     run = None
     if not args.no_run:
         executor = _executor(args, gpus)

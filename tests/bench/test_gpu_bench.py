@@ -289,14 +289,15 @@ def test_dry_run_prints_builds_and_hours_per_table_and_runs_nothing(tmp_path, mo
     assert not (tmp_path / "out").exists() and not (tmp_path / "ws" / "store").exists()
 
 
-def test_the_paper_preset_on_the_cpu_needs_an_explicit_device(tmp_path, monkeypatch, capsys, gpus):
+@pytest.mark.parametrize("argv", [[], ["--device", "cpu"]])
+def test_the_paper_preset_on_the_cpu_needs_yes(argv, tmp_path, monkeypatch, capsys, gpus):
     gpus(0)
     monkeypatch.setattr(bench.runner, "execute", lambda *a, **k: pytest.fail("ran"))
     out = ["--workspace", str(tmp_path / "ws"), "--out", str(tmp_path / "out")]
-    assert main(["--preset", "paper", "--tables", "17", *out]) == 2
+    assert main(["--preset", "paper", "--tables", "17", *out, *argv]) == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.startswith("error: --preset paper on the CPU: about ") and "CPU-hours" in err
-    assert err.endswith("pass --device cpu to run it on the CPU anyway")
+    assert err.endswith("pass --yes to run it on the CPU anyway")
 
 
 def test_the_estimate_reproduces_its_sources():
