@@ -1,13 +1,24 @@
-"""``moegs`` command line: list, train, eval, render, export, compare, route.
+"""``moegs`` command line: list, recipe, train, eval, render, export, compare, route.
 
-    moegs list
+    moegs list                                  # experts, data root, scenes (synthetic: dnerf_like, n3v_like)
     moegs recipe --expert grid4d --scene n3v:coffee_martini   # the config a run would use, and why
     moegs train --expert static --scene dnerf:mutant --preset quick --out runs/static-mutant
     moegs eval runs/static-mutant --profile clean
-    moegs render runs/static-mutant            # test views -> PNGs, video.mp4, psnr.csv
+    moegs render runs/static-mutant --path orbit   # video along a camera path + test-view strips
     moegs export runs/static-mutant --time 0.5 --out mutant.ply
     moegs compare --experts all --scene panoptic:basketball --preset quick   # one table, all experts
     moegs route --experts deformable,grid4d --scene dnerf:mutant     # MoE-GS router + gate maps
+
+``train`` ends by printing the test views' PSNR, SSIM and LPIPS and the files of its run folder:
+``config.json``, ``checkpoint.safetensors``, ``metrics.json``, ``loss.json`` and ``loss.png`` (the training
+loss of every step, read back from the final checkpoint; ``moegs.outputs``).
+
+``render`` writes into ``<run>/renders`` (``--out``): ``video.mp4``, H.264 yuv420p (crf 18, frames padded to
+even sizes) that browsers play, along ``--path``: ``test`` (the test views in time order), ``orbit`` or
+``spiral`` (``--frames`` cameras built from the scene's cameras, time advancing uniformly over the scene's
+time range; ``moegs.render_path``), or ``auto`` (default: orbit for cameras around the scene, spiral for a
+forward-facing rig); ``test/<i>.png``, ground truth | render | error ``[H, 3W, 3]`` of each test view (error:
+mean absolute error x4 through the inferno colour map); ``psnr.csv``, the PSNR of each test view.
 
 Heavy modules (experts, rasterizer, loaders) are imported inside the commands, so ``moegs list``
 and ``--help`` stay fast.
@@ -43,9 +54,16 @@ def _cmd_list(args: argparse.Namespace) -> int:
     print(f"data root: {_describe_root(data_root())}")
     print("scenes (found under the data root; synthetic:<name> is generated on demand):")
     for dataset in list_datasets():
-        found = ", ".join(list_scenes(dataset)) or ("generated on demand" if dataset == "synthetic" else "-")
+        found = ", ".join(list_scenes(dataset)) or "-"
+        if dataset == "synthetic":
+            found = ", ".join(SYNTHETIC_SCENES) + " (generated on demand)"
         print(f"  {dataset:<12} {found}")
     return 0
+
+
+SYNTHETIC_SCENES = ("dnerf_like", "n3v_like")
+"""``moegs.data.synthetic.list_synthetic()``, named here so that ``moegs list`` imports no torch (a test
+keeps the two equal)."""
 
 
 def _describe_root(root: Path | None) -> str:
@@ -135,6 +153,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     import shutil
 
     from moegs.data import load_scene
+    from moegs.outputs import describe_run, format_scores, loss_curves, write_loss_curve
     from moegs.recipes import config_for
     from moegs.train.entry import train_recipe
     from moegs.train.reuse import finished_run_of
@@ -161,7 +180,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     )
     if finished is not None:
         print(
-            f"{out} holds a finished run (test PSNR {finished['test']['psnr']:.2f}); left as it is "
+            f"{out} holds a finished run (test {format_scores(finished['test'])}); left as it is "
             "(--force trains it again)"
         )
         return 0
@@ -174,16 +193,15 @@ def _cmd_train(args: argparse.Namespace) -> int:
     _, result = train_recipe(
         recipe, scene, out, device=args.device, resume=not args.no_resume, progress=not args.quiet
     )
+    write_loss_curve(loss_curves(out), out, title=f"{args.expert} on {scene.name}")
     test = result["test"]
-    scores = (
-        f"test PSNR {test['psnr']:.2f} SSIM {test['ssim']:.4f}"
-        if test
-        else "not evaluated (the scene has no test views)"
-    )
     print(
         f"{args.expert} on {scene.name}: {result['num_gaussians']} Gaussians, "
-        f"{result['train_seconds']:.1f} s training, {scores} -> {out}"
+        f"{result['train_seconds']:.1f} s training"
     )
+    views = f" ({test['num_views']} views)" if test else ""
+    print(f"test{views}: {format_scores(test)}")
+    _print_files(out, describe_run(out))
     return 0
 
 
@@ -216,44 +234,130 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+RENDER_PATHS = ("auto", "test", "orbit", "spiral")
+"""``moegs.render_path.PATHS``, named here so that ``--help`` imports no torch (a test keeps them equal)."""
+
+
 def _cmd_render(args: argparse.Namespace) -> int:
+    import torch
+
+    run, meta, scene, expert = _load_run(args.run, args.device)
+    path, cameras = _path_cameras(args, scene)
+    out = Path(args.out) if args.out else run / "renders"
+    out.mkdir(parents=True, exist_ok=True)
+    backend = meta["train"]["backend"]
+    with torch.no_grad():
+        renders = _write_test_views(expert, scene, backend, out) if scene.test else []
+        if path == "test":
+            frames = [renders[i] for i in _test_order(scene)]
+        else:
+            frames = [_render_image(expert, c, scene, backend) for c in cameras]
+    fps = args.fps or (10 if path == "test" else 30)
+    size = _write_video(frames, out / "video.mp4", fps)
+    times = f"time {cameras[0].time:.3f} -> {cameras[-1].time:.3f}"
+    _print_files(
+        out,
+        [("video.mp4", f"{len(frames)} frames along the {path} path, {times}, {size}, {fps} fps")]
+        + (_test_view_files(len(renders)) if renders else []),
+    )
+    return 0
+
+
+def _test_view_files(n: int) -> list[tuple[str, str]]:
+    """``(name, what it holds)`` of the files ``_write_test_views`` writes for ``n`` test views."""
+    from moegs.outputs import ERROR_COLORMAP, ERROR_GAIN
+
+    error = f"mean |error| x{ERROR_GAIN:g}, {ERROR_COLORMAP} colour map"
+    return [
+        (f"test/00000..{n - 1:05d}.png", f"ground truth | render | error of each test view ({error})"),
+        ("psnr.csv", "the PSNR of each test view"),
+    ]
+
+
+def _print_files(folder: Path, files: list[tuple[str, str]]) -> None:
+    """``wrote <folder>:`` and one line per ``(name, what it holds)``."""
+    print(f"wrote {folder}:")
+    width = max(len(name) for name, _ in files)
+    for name, what in files:
+        print(f"  {name:<{width}}  {what}".rstrip())
+
+
+def _render_image(expert, camera, scene, backend: str):
+    """uint8 ``[H, W, 3]`` render of ``expert`` through ``camera`` (placed on the scene's device)."""
+    from moegs.train.evaluate import render_view
+
+    rgb, _, _ = render_view(expert, camera.to(scene.background.device), scene.background, backend)
+    return _uint8(rgb)
+
+
+def _write_test_views(expert, scene, backend: str, out: Path) -> list:
+    """``out/test/<i>.png`` strips (ground truth | render | error, ``[H, 3W, 3]``) and ``out/psnr.csv`` of
+    the scene's test views. Returns their renders (uint8 ``[H, W, 3]``) in the order of ``scene.test``."""
     import csv
 
     import imageio.v3 as iio
-    import torch
 
-    from moegs.io.video import VideoWriter
     from moegs.metrics import psnr
+    from moegs.outputs import comparison_strip
     from moegs.train.evaluate import render_view
 
-    run, meta, scene, expert = _load_run(args.run, args.device)
-    out = Path(args.out) if args.out else run / "renders"
-    out.mkdir(parents=True, exist_ok=True)
-    frames, rows = [], []
-    with torch.no_grad():
-        for i, view in enumerate(scene.test):
-            rgb, _, _ = render_view(expert, view.camera, scene.background, meta["train"]["backend"])
-            image = (rgb.clamp(0, 1) * 255).round().to(torch.uint8).cpu().numpy()
-            iio.imwrite(out / f"{i:05d}.png", image)
-            frames.append(image)
-            rows.append(
-                {
-                    "index": i,
-                    "key": view.key,
-                    "time": view.camera.time,
-                    "psnr": float(psnr(rgb, view.image())),
-                }
-            )
+    renders, rows = [], []
+    (out / "test").mkdir(exist_ok=True)
+    for i, view in enumerate(scene.test):
+        rgb, _, _ = render_view(expert, view.camera, scene.background, backend)
+        target = view.image()
+        image = _uint8(rgb)
+        iio.imwrite(out / "test" / f"{i:05d}.png", comparison_strip(image, _uint8(target)))
+        renders.append(image)
+        rows.append({"index": i, "key": view.key, "time": view.camera.time, "psnr": float(psnr(rgb, target))})
     with open(out / "psnr.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
+    return renders
+
+
+def _uint8(image):
+    """``[H, W, 3]`` float tensor in [0, 1] -> uint8 numpy array."""
+    import torch
+
+    return (image.clamp(0, 1) * 255).round().to(torch.uint8).cpu().numpy()
+
+
+def _path_cameras(args: argparse.Namespace, scene) -> tuple[str, list]:
+    """``(path name, cameras)`` of ``--path``: the test cameras by time, or an orbit / spiral of
+    ``--frames`` cameras built from all of the scene's cameras, time advancing over the scene's range."""
+    from moegs.render_path import camera_path
+
+    if args.path == "test":
+        if not scene.test:
+            raise ValueError("--path test: the scene has no test views; use --path orbit or spiral")
+        return "test", [scene.test[i].camera for i in _test_order(scene)]
+    cameras = [v.camera for v in [*scene.train, *scene.test]]
+    times = [v.camera.time for v in scene.train]
+    reference = (scene.test or scene.train)[0].camera
+    return camera_path(args.path, cameras, reference, args.frames, (min(times), max(times)))
+
+
+def _test_order(scene) -> list[int]:
+    """Indices of ``scene.test`` by time, then camera."""
+    return sorted(
+        range(len(scene.test)), key=lambda i: (scene.test[i].camera.time, scene.test[i].camera.camera_id)
+    )
+
+
+def _write_video(frames: list, path: Path, fps: int) -> str:
+    """H.264 yuv420p mp4 (crf 18, plays in browsers) of uint8 ``[H, W, 3]`` frames, each padded to even
+    sizes (``moegs.outputs.pad_even``); returns ``"WxH H.264 yuv420p"``."""
+    from moegs.io.video import VideoWriter
+    from moegs.outputs import pad_even
+
+    frames = [pad_even(f) for f in frames]
     height, width = frames[0].shape[:2]
-    with VideoWriter(out / "video.mp4", width, height, args.fps, codec="yuv444") as video:
+    with VideoWriter(path, width, height, fps, codec="yuv420") as video:
         for frame in frames:
             video.write(frame)
-    print(f"{len(frames)} test views -> {out} (PNGs, video.mp4, psnr.csv)")
-    return 0
+    return f"{width}x{height} H.264 yuv420p"
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
@@ -334,10 +438,29 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_device_argument(p, "render and score")
 
-    p = sub.add_parser("render", help="render the test views to PNGs, an mp4 and a per-view PSNR csv")
-    p.add_argument("run")
+    p = sub.add_parser(
+        "render",
+        help="a video along a camera path, and ground truth | render | error strips of the test views",
+        description="Writes <out>/video.mp4 (H.264 yuv420p, plays in browsers), <out>/test/<i>.png (ground "
+        "truth | render | error of each test view) and <out>/psnr.csv (PSNR of each test view).",
+    )
+    p.add_argument("run", help="run folder written by `moegs train`")
     p.add_argument("--out", help="output folder (default <run>/renders)")
-    p.add_argument("--fps", type=positive_int, default=10)
+    p.add_argument(
+        "--path",
+        default="auto",
+        choices=RENDER_PATHS,
+        help="camera path of the video: test (the test views in time order), orbit (a circle around the "
+        "cameras' look-at centre), spiral (NeRF's spiral around the mean camera, for forward-facing rigs), "
+        "auto (default: orbit when the cameras surround the scene, spiral when they face one way); orbit "
+        "and spiral advance time uniformly over the scene's time range",
+    )
+    p.add_argument(
+        "--frames", type=positive_int, default=120, help="frames of an orbit or spiral video (default 120)"
+    )
+    p.add_argument(
+        "--fps", type=positive_int, help="frames per second of the video (default 30; 10 with --path test)"
+    )
     add_device_argument(p, "render")
 
     p = sub.add_parser("export", help="write the Gaussians at one time as a 3DGS PLY")

@@ -66,6 +66,8 @@ ARGUMENTS = [
     (["render", "run", "--fps", "0"], "argument --fps: expected a positive integer, got '0'"),
     (["render", "run", "--fps", "-2"], "argument --fps: expected a positive integer, got '-2'"),
     (["render", "run", "--fps", "x"], "argument --fps: expected a positive integer, got 'x'"),
+    (["render", "run", "--frames", "0"], "argument --frames: expected a positive integer, got '0'"),
+    (["render", "run", "--path", "zigzag"], "argument --path: invalid choice: 'zigzag'"),
     (["export", "run", "--time", "7.5"], "argument --time: expected a time in [0, 1], got '7.5'"),
     (["export", "run", "--time", "nan"], "argument --time: expected a time in [0, 1], got 'nan'"),
     (["export", "run", "--time", "-0.1"], "argument --time: expected a time in [0, 1], got '-0.1'"),

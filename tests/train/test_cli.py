@@ -1,9 +1,11 @@
 """``moegs`` command line: a light ``list`` and an end-to-end smoke run on a generated scene."""
 
 import json
+import re
 import subprocess
 import sys
 
+import av
 import pytest
 
 from moegs.cli import main
@@ -20,7 +22,8 @@ def test_list_imports_no_torch_expert_renderer_or_loader():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert "static" in done.stdout and "mcmc" in done.stdout and "dnerf" in done.stdout
-    assert "  synthetic    generated on demand\n" in done.stdout and "  n3v          " in done.stdout
+    assert "  synthetic    dnerf_like, n3v_like (generated on demand)\n" in done.stdout
+    assert "  n3v          " in done.stdout
 
 
 def test_list_says_where_it_looked_for_data(tmp_path, monkeypatch, capsys):
@@ -97,6 +100,14 @@ def test_recipe_shows_how_a_config_is_made(capsys):
 
 @pytest.mark.slow
 def test_train_eval_render_export(tmp_path, monkeypatch, capsys):
+    """A tiny run at an odd image size (37x37): train prints PSNR, SSIM, LPIPS and its files and keeps its
+    loss curve; render writes yuv420p videos (padded to 38x38) along each path with time advancing, and a
+    ground truth | render | error strip per test view."""
+    import imageio.v3 as iio
+
+    import moegs.cli
+    from moegs.io.video import decode_video
+
     monkeypatch.setenv("MOEGS_CACHE", str(tmp_path / "cache"))
     run = tmp_path / "run"
     assert (
@@ -110,7 +121,7 @@ def test_train_eval_render_export(tmp_path, monkeypatch, capsys):
                 "--iterations",
                 "4",
                 "--resolution-scale",
-                "0.4",
+                "0.37",
                 "--out",
                 str(run),
                 "--quiet",
@@ -120,22 +131,59 @@ def test_train_eval_render_export(tmp_path, monkeypatch, capsys):
         )
         == 0
     )
+    printed = capsys.readouterr().out
     metrics = json.loads((run / "metrics.json").read_text())
     assert metrics["completed"] and metrics["step"] == 4 and metrics["stand_in"]
+    assert re.search(
+        r"^test \(5 views\): PSNR \d+\.\d\d  SSIM \d\.\d{4}  LPIPS (\d\.\d{4}|n/a \(.+\))$", printed, re.M
+    )
+    assert f"wrote {run}:\n  config.json " in printed
+    for name in ("checkpoint.safetensors", "metrics.json", "loss.json", "loss.png"):
+        assert re.search(rf"^  {re.escape(name)} +\S", printed, re.M), name
+    loss = json.loads((run / "loss.json").read_text())["curves"]["static"]
+    assert loss["first_step"] == 1 and len(loss["loss"]) == 4 and loss["loss"][-1] == metrics["final_loss"]
+    assert iio.imread(run / "loss.png").ndim == 3
     config = json.loads((run / "config.json").read_text())
-    assert config["train"]["seed"] == 1 and config["train"]["resolution_scale"] == 0.4
+    assert config["train"]["seed"] == 1 and config["train"]["resolution_scale"] == 0.37
     assert config["recipe"]["base"] == "paper" and config["recipe"]["preset"] == "quick"
     assert config["recipe"]["overrides"]["train.iterations"] == 4
 
     assert main(["eval", str(run), "--profile", "clean"]) == 0
     evaluated = json.loads((run / "eval-clean.json").read_text())
-    # the same views at the resolution the run trained at (the user's 0.4 of the stand-in): the same PSNR
+    # the same views at the resolution the run trained at (the user's 0.37 of the stand-in): the same PSNR
     assert [v["key"] for v in evaluated["per_view"]] == [v["key"] for v in metrics["test"]["per_view"]]
     assert evaluated["psnr"] == pytest.approx(metrics["test"]["psnr"], abs=1e-6)
-    assert main(["render", str(run)]) == 0
+
+    times = []
+    render = moegs.cli._render_image
+    monkeypatch.setattr(moegs.cli, "_render_image", lambda e, c, *a: times.append(c.time) or render(e, c, *a))
+    capsys.readouterr()
+    assert main(["render", str(run), "--frames", "6"]) == 0  # auto: the D-NeRF-like rig surrounds the scene
     renders = run / "renders"
-    assert (renders / "video.mp4").stat().st_size > 0 and (renders / "00000.png").is_file()
-    assert len((renders / "psnr.csv").read_text().splitlines()) == 1 + metrics["test"]["num_views"]
+    printed = capsys.readouterr().out
+    assert f"wrote {renders}:\n  video.mp4 " in printed
+    assert "6 frames along the orbit path, time 0.000 -> 1.000, 38x38 H.264 yuv420p, 30 fps\n" in printed
+    assert re.search(
+        r"^  test/00000\.\.00004\.png +ground truth \| render \| error of each test view", printed, re.M
+    )
+    assert times == pytest.approx([0.0, 0.2, 0.4, 0.6, 0.8, 1.0])
+    with av.open(str(renders / "video.mp4")) as container:
+        stream = container.streams.video[0]
+        assert (stream.codec_context.name, stream.codec_context.pix_fmt) == ("h264", "yuv420p")
+    assert decode_video(renders / "video.mp4").shape == (6, 38, 38, 3)
+    strip = iio.imread(renders / "test" / "00000.png")
+    assert strip.shape == (37, 3 * 37, 3)
+    rows = (renders / "psnr.csv").read_text().splitlines()
+    assert len(rows) == 1 + metrics["test"]["num_views"]
+    assert float(rows[1].split(",")[-1]) == pytest.approx(metrics["test"]["per_view"][0]["psnr"], abs=1e-3)
+    times.clear()
+    assert main(["render", str(run), "--path", "spiral", "--frames", "3"]) == 0
+    assert decode_video(renders / "video.mp4").shape[0] == 3 and times == [0.0, 0.5, 1.0]
+    times.clear()
+    assert main(["render", str(run), "--path", "test", "--out", str(tmp_path / "r")]) == 0
+    assert times == [] and "5 frames along the test path" in capsys.readouterr().out  # the strips' renders
+    assert decode_video(tmp_path / "r" / "video.mp4").shape[0] == metrics["test"]["num_views"]
+
     assert main(["export", str(run), "--time", "0.5", "--out", str(tmp_path / "g.ply")]) == 0
     assert (tmp_path / "g.ply").stat().st_size > 0
     capsys.readouterr()
