@@ -446,9 +446,10 @@ def main(argv: list[str] | None = None) -> int:
         from bench.estimate import plan_estimates
 
         total = plan_estimates(run_plan)[1]
+        cpu, gpu = (f"{h:.1f}" if h < 10 else f"{h:.0f}" for h in (total.cpu_hours, total.gpu_hours))
         print(
-            f"error: --preset paper on the CPU: about {total.cpu_hours:.0f} CPU-hours "
-            f"({total.gpu_hours:.0f} H100-hours on a GPU, bench/estimate.py) for the selected tables "
+            f"error: --preset paper on the CPU: about {cpu} CPU-hours "
+            f"({gpu} H100-hours on a GPU, bench/estimate.py) for the selected tables "
             "(--dry-run lists them); pass --yes to run it on the CPU anyway",
             file=sys.stderr,
         )
