@@ -238,6 +238,134 @@ def test_route_ctrl_c_and_kill_9_resume_to_the_same_result(route_experts, tmp_pa
     assert _router_metrics(reference) == finished  # left alone
 
 
+@pytest.mark.slow
+def test_route_runs_trains_only_the_router(route_experts, tmp_path, capsys):
+    """``moegs route --runs`` routes finished runs as they are: nothing in their folders is written, no
+    expert trains in ``--out``; the router folder records its runs and refuses a router over others."""
+    import hashlib
+
+    def snapshot() -> dict:
+        return {
+            str(p): (p.stat().st_mtime_ns, hashlib.sha256(p.read_bytes()).hexdigest())
+            for p in sorted(route_experts.rglob("*"))
+            if p.is_file()
+        }
+
+    runs = [str(route_experts / name) for name in ROUTE_EXPERTS]
+    before = snapshot()
+    out = tmp_path / "moe"
+    argv = ["route", "--runs", *runs, "--out", str(out), "--iterations", "10", "--gate-views", "1", "--quiet"]
+    capsys.readouterr()
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    for name, run in zip(ROUTE_EXPERTS, runs, strict=True):
+        assert f"expert {name}: reusing the trained run {run} ({name}, 30 iterations, test PSNR " in printed
+    assert snapshot() == before  # no expert was trained, resumed or rewritten
+    assert [p.name for p in out.iterdir()] == ["router_vapr"]
+    router = out / "router_vapr"
+    assert json.loads((router / "metrics.json").read_text())["experts"] == list(ROUTE_EXPERTS)
+    recorded = json.loads((router / "runs.json").read_text())["runs"]
+    assert [(router / r).resolve() for r in recorded] == [Path(r).resolve() for r in runs]
+    assert (router / "gates" / "gate_1_mcmc_000.png").is_file()
+
+    assert main(argv) == 0  # the same command finds its finished router
+    assert "holds a finished router run" in capsys.readouterr().out
+    swapped = ["route", "--runs", *runs[::-1], "--out", str(out), "--iterations", "10", "--quiet"]
+    assert main(swapped) == 2
+    err = capsys.readouterr().err
+    assert f"moegs route: {router} holds a router over other expert runs (" in err and "--force" in err
+    assert snapshot() == before
+
+
+def _fake_run(folder: Path, **changes) -> str:
+    """A run folder with what ``--runs`` reads before loading anything (``config.json``, ``metrics.json``):
+    a finished static run of the quick preset on the stand-in, with ``changes``."""
+    values = {"expert": "static", "scene": SCENE, "preset": "quick", "background": "white", "completed": True}
+    values |= changes
+    overrides = {"train.resolution_scale": values["scale"]} if "scale" in values else {}
+    config = {
+        "expert": values["expert"],
+        "scene": values["scene"],
+        "train": {"resolution_scale": values.get("scale", 0.125)},
+        "recipe": {"preset": values["preset"], "background": values["background"], "overrides": overrides},
+    }
+    folder.mkdir(parents=True)
+    (folder / "config.json").write_text(json.dumps(config))
+    (folder / "metrics.json").write_text(
+        json.dumps({"completed": values["completed"], "test": {"psnr": 20.0}})
+    )
+    return str(folder)
+
+
+RUNS_REFUSED = {  # the second run's changes, extra arguments, expected message ({a}, {b}: the runs)
+    "another background": (
+        {"background": "black"},
+        [],
+        "the runs trained on different backgrounds ({a}: white, {b}: black); a router blends images "
+        "composited on one background",
+    ),
+    "another preset": (
+        {"preset": "paper"},
+        [],
+        "the runs trained on different presets ({a}: quick, {b}: paper); route runs of one preset",
+    ),
+    "another scene": (
+        {"scene": "synthetic:n3v_like"},
+        [],
+        f"the runs trained on different scenes ({{a}}: {SCENE}, {{b}}: synthetic:n3v_like); "
+        "route runs of one scene",
+    ),
+    "another image size": (
+        {"scale": 0.5},
+        [],
+        "the runs trained on different image scales ({a}: None, {b}: 0.5); "
+        "a router blends images of one size",
+    ),
+    "unfinished": ({"completed": False}, [], "{b} holds no finished run (metrics.json of a completed"),
+    "unknown expert": ({"expert": "nosuch"}, [], "unknown expert 'nosuch'"),
+    "another --scene": (
+        {},
+        ["--scene", "synthetic:n3v_like"],
+        f"--scene synthetic:n3v_like but the runs trained on {SCENE}; leave --scene out with --runs",
+    ),
+    "another --preset": (
+        {},
+        ["--preset", "paper"],
+        "--preset paper but the runs trained at quick; leave --preset out with --runs",
+    ),
+    "--expert-iterations": (
+        {},
+        ["--expert-iterations", "5"],
+        "--expert-iterations trains experts (--experts); --runs routes trained runs as they are",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(RUNS_REFUSED))
+def test_route_runs_that_cannot_be_routed_are_refused_in_one_line(case, tmp_path, capsys):
+    changes, extra, message = RUNS_REFUSED[case]
+    a, b = _fake_run(tmp_path / "a"), _fake_run(tmp_path / "b", **changes)
+    out = tmp_path / "out"
+    assert main(["route", "--runs", a, b, *extra, "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith(f"moegs route: {message.format(a=a, b=b)}"), err
+    assert not out.exists()
+
+
+def test_route_runs_needs_two_different_run_folders(tmp_path, capsys):
+    a = _fake_run(tmp_path / "a")
+    (tmp_path / "empty").mkdir()
+    cases = {
+        (a,): "--runs needs at least two different run folders to route between",
+        (a, a): "--runs needs at least two different run folders to route between",
+        (a, str(tmp_path / "empty")): f"{tmp_path / 'empty'} is not a training run (no config.json)",
+    }
+    for runs, message in cases.items():
+        assert main(["route", "--runs", *runs, "--out", str(tmp_path / "out"), "--quiet"]) == 2
+        assert capsys.readouterr().err.startswith(f"moegs route: {message}")
+    assert not (tmp_path / "out").exists()
+
+
 def test_finished_run_is_a_completed_and_evaluated_run(tmp_path):
     """The one check ``moegs train``, ``compare`` and ``route`` use before training into a folder."""
     import json
