@@ -1,7 +1,7 @@
 """End-to-end render speed on one device: every expert's render, and MoE-GS over K experts rendered in
 one pass against K passes (the paper's 36 -> 60 FPS, 1.67x, compares these two on trained N3V experts).
 
-    python -m bench.moe_fps --device cuda --json reports/gpu/moe_fps.json --readme README.md
+    python -m bench.moe_fps --device cuda --json reports/gpu/moe_fps.json --readme docs/speed.md
 
 Unlike ``bench.rasterizer`` (the rasterizer alone), each time here covers the expert's field at the
 view's time, its decoding, the rasterizer and, for MoE-GS, the router. The experts are built untrained

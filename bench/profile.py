@@ -1,7 +1,7 @@
 """Where one training step of an expert spends its time (``python -m bench.profile``).
 
     python -m bench.profile --expert deformable --scene dnerf:mutant [--json profile.json]
-    python -m bench.profile --expert static,deformable,grid4d --scene dnerf:mutant --readme README.md
+    python -m bench.profile --expert static,deformable,grid4d --scene dnerf:mutant --readme docs/speed.md
 
 Builds the expert as the bench does (``moegs.recipes.config_for`` at ``--preset``, the recipe's scene
 loading), runs ``--warmup`` steps, then times ``--steps`` steps of the training loop itself

@@ -2,8 +2,8 @@
 
     python -m bench.rasterizer                       # run tests/benchmarks, write runs/rasterizer/*.json|md
     python -m bench.rasterizer --json saved.json     # only build the table from a saved run
-    python -m bench.rasterizer --readme README.md    # also rewrite README (results:rasterizer section)
-    python -m bench.rasterizer --backend cuda --readme README.md   # on a GPU: the gsplat cases only,
+    python -m bench.rasterizer --readme docs/speed.md    # also its results:rasterizer section
+    python -m bench.rasterizer --backend cuda --readme docs/speed.md   # on a GPU: the gsplat cases only,
                                                      # README section results:rasterizer-cuda
 
 Speeds are ratios inside ONE run (medians of the same machine and load), checked against the targets

@@ -1,4 +1,4 @@
-"""The README's measured-vs-published sections: ``python -m bench.readme README.md --scene dnerf:mutant``.
+"""Measured-vs-published docs sections: ``python -m bench.readme docs/results.md --scene dnerf:mutant``.
 
 Runs (or reuses) ``moegs compare`` for the experts on the scene, then rewrites the section between
 ``<!-- results:<scene> -->`` and ``<!-- /results:<scene> -->`` of the markdown file (``<scene>`` is the part
@@ -146,7 +146,9 @@ def readme_section(table: dict, published: list[dict], machine: str | None = Non
     profiles = sorted({r.get("metric_profile") or "?" for r in rows})
     scene = table["scene"]
     names = ",".join(r["expert"] for r in rows)
-    command = f"python -m bench.readme --experts {names} --scene {scene} --preset {table['preset']} README.md"
+    command = (
+        f"python -m bench.readme --experts {names} --scene {scene} --preset {table['preset']} docs/results.md"
+    )
     where = Path(rows[0]["run"]).parent if rows else "?"
     intro = [
         f"Measured: `{scene}`, preset `{table['preset']}` (reduced scale: {', '.join(sizes)} images, the "
@@ -187,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     from moegs.compare import compare
 
     p = argparse.ArgumentParser(prog="python -m bench.readme", description=__doc__.split("\n\n")[0])
-    p.add_argument("readme", type=Path, help="markdown file with the results markers (e.g. README.md)")
+    p.add_argument("readme", type=Path, help="markdown file with the results markers (e.g. docs/results.md)")
     p.add_argument("--scene", required=True, help="<dataset>:<scene>, e.g. dnerf:mutant")
     p.add_argument("--experts", default="all", help="comma-separated registry names, or all")
     p.add_argument("--preset", default="quick", choices=["quick", "paper"])

@@ -12,6 +12,7 @@ render; a report of the full plan does not list runs of a ``--tables`` subset (a
 from __future__ import annotations
 
 import json
+import re
 import time
 from pathlib import Path
 from typing import Any
@@ -128,14 +129,18 @@ def recent(history: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return shown
 
 
-def took(entry: dict[str, Any]) -> str:
-    """``44.7 min cold (2 jobs, <cpu>)``: the run's wall clock, cache state and machine."""
+def took(entry: dict[str, Any], machine: bool = True) -> str:
+    """``44.7 min cold (2 jobs, <cpu>)``: the run's wall clock, cache state and machine; without
+    ``machine``, its thread count only (``44.7 min cold (2 jobs, 2 CPU threads)``)."""
     minutes = entry["seconds"] / 60
     time = f"{minutes:.1f} min" if minutes >= 1 else f"{entry['seconds']:.0f} s"
     how = f"{entry['jobs']} jobs" if entry["jobs"] else entry["executor"]
     if entry.get("device", "cpu") != "cpu":  # older entries have no device: they ran on the CPU
         how += f" on {entry['device']}"
-    return f"{time} {cache_state(entry)} ({how}, {entry['machine']})"
+    if machine:
+        return f"{time} {cache_state(entry)} ({how}, {entry['machine']})"
+    threads = re.search(r"(\d+) logical CPUs", entry["machine"])
+    return f"{time} {cache_state(entry)} ({how}" + (f", {threads[1]} CPU threads)" if threads else ")")
 
 
 def describe(entry: dict[str, Any]) -> str:

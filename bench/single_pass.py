@@ -1,7 +1,7 @@
 """Single pass against separate renders, timed in pairs: K experts rendered by one ``rasterize_multi`` and
 by K ``rasterize`` calls, back to back in one process, round after round.
 
-    python -m bench.single_pass --backend cuda --json reports/gpu/single_pass.json --readme README.md
+    python -m bench.single_pass --backend cuda --json reports/gpu/single_pass.json --readme docs/speed.md
 
 pytest-benchmark (``bench.rasterizer``) times each mode in its own test, one after the other, so when the
 machine drifts between the two tests (GPU clocks, other load) the ratio of their medians drifts with it:

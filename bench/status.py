@@ -52,7 +52,7 @@ def claim_counts(summary: dict[str, Any], kind: str | None = None) -> Counter:
 
 def claims_cell(summary: dict[str, Any], kind: str | None = "paper") -> str:
     """The verdicts of the claims of ``kind``: ``18 held, 15 failed, 43 within noise (32 against the
-    paper), 3 n/a (of 79)``."""
+    paper), 3 n/a (of 79)``; ``none`` when the run has no such claim."""
     counts = claim_counts(summary, kind)
     against = sum(claim.get("ours_leans") == AGAINST_PAPER for claim in _claims(summary, kind))
     parts = [
@@ -60,7 +60,7 @@ def claims_cell(summary: dict[str, Any], kind: str | None = "paper") -> str:
         for v in VERDICTS
         if counts[v]
     ]
-    return f"{', '.join(parts)} (of {sum(counts.values())})"
+    return f"{', '.join(parts)} (of {sum(counts.values())})" if parts else "none"
 
 
 def regimes_cell(regimes: dict[str, float] | None) -> str:
@@ -132,12 +132,7 @@ def wall_clock_cell(summary: dict[str, Any]) -> str:
     if run is None:  # rendered before bench.runlog existed, or the workspace recorded only warm runs
         return "not recorded"
     failed = f", {run['failures']} cells failed" if run["failures"] else ""
-    return took(run) + failed
-
-
-def _provenance(summary: dict[str, Any]) -> str:
-    git = summary["header"].get("git", {}).get("commit", "unknown")[:7]
-    return f"git {git}, library `{summary['header'].get('moegs_code_version', 'unknown')[:8]}`"
+    return took(run, machine=False) + failed
 
 
 def section(quick: dict[str, Any], standard: dict[str, Any]) -> str:
@@ -155,7 +150,8 @@ def section(quick: dict[str, Any], standard: dict[str, Any]) -> str:
         f"| wall clock of the run that computed them | {wall_clock_cell(quick)} | "
         f"{wall_clock_cell(standard)} |",
         "",
-        f"Motion at quick ({MOTION_SCENE}, {MOTION_RECIPE} recipes; issue 12's floors, dynamic region):",
+        f"Motion at quick ({MOTION_SCENE}, {MOTION_RECIPE} recipes; the suite's motion floors, dynamic "
+        "region):",
         "",
         "| expert | PSNR dynamic | motion R² | floor | motion regimes, best to worst (dB) |",
         "|---|---|---|---|---|",
@@ -169,8 +165,8 @@ def section(quick: dict[str, Any], standard: dict[str, Any]) -> str:
         "|---|---|---|---|---|---|",
         *real_scene_rows(standard, quick),
         "",
-        f"Written by `python -m bench.status --readme README.md` from `reports/summary.json` "
-        f"({_provenance(quick)}) and `reports/standard/summary.json` ({_provenance(standard)}).",
+        "Written by `python -m bench.status --readme README.md` from `reports/summary.json` and "
+        "`reports/standard/summary.json`; their headers name the code and the machine of every number.",
     ]
     return "\n".join(lines) + "\n"
 

@@ -74,6 +74,7 @@ def test_counts_floors_and_routing():
         ],
     )
     assert claim_counts(quick) == {"held": 1, "failed": 1, "within noise": 2}
+    assert claims_cell(quick, "sanity") == "none"  # a run without such claims
     quick["specs"][0]["claims"] += [
         {"ours": "held", "kind": "sanity"},
         {"ours": "within noise", "ours_leans": "against the paper", "kind": "suite"},
@@ -114,12 +115,12 @@ def test_wall_clock_is_the_recorded_run_that_computed_the_cells():
     summary = _summary([])
     assert wall_clock_cell(summary) == "not recorded"
     summary["header"]["history"] = [cold, warm]
-    assert wall_clock_cell(summary) == "44.7 min cold (2 jobs, Intel Xeon, 2 logical CPUs)"
+    assert wall_clock_cell(summary) == "44.7 min cold (2 jobs, 2 CPU threads)"
     summary["header"]["history"] = [warm]
     assert wall_clock_cell(summary) == "not recorded"
     slurm = {**cold, "jobs": None, "executor": "slurm", "builds_reused": 9, "builds_run": 80, "failures": 2}
     summary["header"]["history"] = [cold, slurm, warm]
-    assert wall_clock_cell(summary) == "44.7 min resumed (slurm, Intel Xeon, 2 logical CPUs), 2 cells failed"
+    assert wall_clock_cell(summary) == "44.7 min resumed (slurm, 2 CPU threads), 2 cells failed"
 
 
 def test_real_scene_rows_pair_standard_with_quick():

@@ -65,7 +65,7 @@ LAYERS = (
     ("moe", "mode"),
     ("cli", "cli_types", "compare", "route", "render_path", "outputs"),
 )
-"""The library's layers, lowest first (the README's "Layers"): a module imports only from its own layer
+"""The library's layers, lowest first (docs/api.md, "Layers"): a module imports only from its own layer
 or lower ones. Training is two layers: the components an expert declares (config, optimiser groups,
 densification strategies, losses) sit below the experts, the loop that drives them above."""
 
@@ -88,7 +88,7 @@ def test_imports_only_go_down_the_layers():
         here = layer_of(module)
         if here is None and path.name == "__init__.py":  # the package and ``moegs.train``: namespaces
             continue
-        assert here is not None, f"moegs.{module} is in no layer: add it to LAYERS and the README"
+        assert here is not None, f"moegs.{module} is in no layer: add it to LAYERS and docs/api.md"
         for name in imported_modules(path):
             if name.split(".")[0] == "moegs" and name != "moegs":
                 there = layer_of(name.removeprefix("moegs."))
