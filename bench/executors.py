@@ -7,12 +7,17 @@
   (``cluster="local"``), each task a job running ``bench.worker.run_job``, or ``pack`` tasks per job run
   one after another (``bench.worker.run_jobs``).
 
+A local worker exits with the bench: on Linux it is started with ``PR_SET_PDEATHSIG`` (SIGTERM, which a
+training worker answers with a checkpoint), so a bench killed with ``kill -9`` leaves no worker running.
+
 Neither schedules anything: ``bench.runner`` submits a task once its dependencies are built, and never
 more than ``capacity`` at a time. A failed task is reported with its log path and never stops the others.
 """
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import os
 import queue
 import signal
@@ -20,7 +25,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,6 +52,35 @@ def _tail(path: Path, lines: int = 3) -> str:
     except OSError:
         return ""
     return " | ".join(text[-lines:])
+
+
+PR_SET_PDEATHSIG = 1
+"""``prctl`` option (``linux/prctl.h``): the signal a process gets when the thread that started it ends."""
+
+
+@functools.cache
+def _prctl() -> Callable[..., int] | None:
+    """libc's ``prctl`` (None where there is none: not Linux), looked up before any fork: the child only
+    calls it."""
+    try:
+        return ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError, TypeError):
+        return None
+
+
+def exit_with_parent(sig: int = signal.SIGTERM) -> Callable[[], None] | None:
+    """A ``preexec_fn`` that sends ``sig`` to the child when this process (its starting thread) ends, and
+    ends a child whose parent is gone already; None where ``prctl`` is missing."""
+    prctl, parent = _prctl(), os.getpid()
+    if prctl is None:
+        return None
+
+    def arm() -> None:  # in the child, between fork and exec: no imports, no locks
+        prctl(PR_SET_PDEATHSIG, int(sig))
+        if os.getppid() != parent:
+            os._exit(1)
+
+    return arm
 
 
 def visible_gpu(index: int) -> str:
@@ -120,6 +154,7 @@ class LocalExecutor:
                 stderr=subprocess.STDOUT,
                 env=env,
                 cwd=REPO,
+                preexec_fn=exit_with_parent(),
             )
             with self._lock:
                 self._running.add(proc)

@@ -1,19 +1,25 @@
 """``LocalExecutor``: each task in its own process with its share of the cores, its output in the task's
-log; a failure or a timeout is an outcome that says why, and Ctrl-C reaches the worker as SIGINT.
+log; a failure or a timeout is an outcome that says why, Ctrl-C reaches the worker as SIGINT, and a worker
+exits when the bench is killed.
 
 The worker here is a shell script standing in for ``python -m bench.worker JOB`` (``FAKE_WORKER`` says
 what it does), so these tests run no cell."""
 
 from __future__ import annotations
 
+import os
 import signal
+import subprocess
+import sys
 import time
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
 
 import bench.executors
 from bench.executors import LocalExecutor
+from bench.keys import REPO
 from bench.worker import THREADS_ENV
 
 WORKER = f"""#!/bin/bash
@@ -98,3 +104,60 @@ def test_ctrl_c_sends_sigint_so_a_worker_can_save_its_checkpoint(fake, monkeypat
 def test_jobs_must_be_positive():
     with pytest.raises(ValueError, match="LocalExecutor: jobs must be >= 1, got 0"):
         LocalExecutor(jobs=0)
+
+
+PARENT = """
+import sys, time
+from pathlib import Path
+from types import SimpleNamespace
+
+import bench.executors as ex
+
+tmp = Path(sys.argv[1])
+ex.sys = SimpleNamespace(executable=str(tmp / "worker.sh"))
+ex.write_job = lambda ws, task, threads: tmp / "job.json"
+workspace = SimpleNamespace(log_path=lambda t: tmp / "logs" / "k.log")
+ex.LocalExecutor().submit(SimpleNamespace(key="k", slug="expert-k"), workspace)
+time.sleep(300)
+"""
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie waiting for its new parent to reap it has ended)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+def test_workers_exit_when_the_bench_is_killed(tmp_path):
+    """``kill -9`` of the process that runs the executor: its worker gets SIGTERM (PR_SET_PDEATHSIG) and is
+    gone within 2 s instead of running on."""
+    pid_file = tmp_path / "worker.pid"
+    script = tmp_path / "worker.sh"
+    script.write_text(
+        f'#!/bin/bash\necho $$ > "{pid_file}.tmp"; mv "{pid_file}.tmp" "{pid_file}"; exec sleep 300\n'
+    )
+    script.chmod(0o755)
+    parent = subprocess.Popen([sys.executable, "-c", PARENT, str(tmp_path)], cwd=REPO)
+    worker = None
+    try:
+        deadline = time.monotonic() + 60
+        while not pid_file.is_file():
+            assert parent.poll() is None and time.monotonic() < deadline, "the worker did not start"
+            time.sleep(0.05)
+        worker = int(pid_file.read_text())
+        assert _alive(worker)
+        parent.kill()
+        parent.wait(timeout=30)
+        deadline = time.monotonic() + 2
+        while _alive(worker) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _alive(worker), "the worker outlived the killed bench by more than 2 s"
+    finally:
+        parent.kill()
+        parent.wait(timeout=30)
+        if worker is not None and _alive(worker):
+            os.kill(worker, signal.SIGKILL)
