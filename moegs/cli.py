@@ -360,15 +360,35 @@ def _write_video(frames: list, path: Path, fps: int) -> str:
     return f"{width}x{height} H.264 yuv420p"
 
 
+EXPORT_FORMATS = ("ply", "splat")
+"""``moegs.exports.FORMATS``, named here so that ``--help`` imports no torch (a test keeps them equal)."""
+
+
 def _cmd_export(args: argparse.Namespace) -> int:
+    """One file at ``--time`` (default 0), or one per time of ``--times`` in a folder with ``index.json``
+    (``moegs.exports``)."""
     import torch
 
-    from moegs.io import export_ply
+    from moegs.exports import export_times, parse_times, write_frame
 
-    run, _, _, expert = _load_run(args.run)
+    if args.times is not None:
+        parse_times(args.times, [])  # a bad list fails before the run loads
+    run, meta, scene, expert = _load_run(args.run)
+    if args.times is not None:
+        times = parse_times(args.times, scene.times.tolist())
+        out = Path(args.out) if args.out else run / f"export_{args.format}"
+        about = {"expert": meta["expert"], "scene": meta["scene"], "run": str(run)}
+        index = export_times(expert, times, out, args.format, about)
+        span = f"t={times[0]:.3f}" + (f" .. {times[-1]:.3f}" if len(times) > 1 else "")
+        files = f"{len(times)} .{args.format} files, {index.name}"
+        print(f"Gaussians at {len(times)} times ({span}) -> {out}: {files}")
+        return 0
+    time = 0.0 if args.time is None else args.time
     with torch.no_grad():
-        path = export_ply(expert.frame(args.time), args.out or run / f"point_cloud_t{args.time:.3f}.ply")
-    print(f"Gaussians at t={args.time} -> {path}")
+        path = write_frame(
+            expert.frame(time), args.out or run / f"point_cloud_t{time:.3f}.{args.format}", args.format
+        )
+    print(f"Gaussians at t={time} -> {path}")
     return 0
 
 
@@ -463,10 +483,25 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_device_argument(p, "render")
 
-    p = sub.add_parser("export", help="write the Gaussians at one time as a 3DGS PLY")
+    p = sub.add_parser(
+        "export",
+        help="write the Gaussians at one or more times as 3DGS PLY or .splat files",
+        description="ply: the standard 3DGS PLY; splat: the 32-byte-per-Gaussian layout of "
+        "antimatter15/splat and the web viewers that read it (moegs.exports).",
+    )
     p.add_argument("run")
-    p.add_argument("--time", type=unit_time, default=0.0, help="normalised time in [0, 1]")
-    p.add_argument("--out", help="PLY path (default <run>/point_cloud_t<time>.ply)")
+    when = p.add_mutually_exclusive_group()
+    when.add_argument("--time", type=unit_time, help="normalised time in [0, 1] of one file (default 0)")
+    when.add_argument(
+        "--times",
+        help="'all' (the scene's frame times) or t0,t1,...: one file per time in a folder, with index.json",
+    )
+    p.add_argument("--format", default="ply", choices=EXPORT_FORMATS, help="ply (default) or splat")
+    p.add_argument(
+        "--out",
+        help="file with --time (default <run>/point_cloud_t<time>.<format>); folder with --times "
+        "(default <run>/export_<format>)",
+    )
 
     p = sub.add_parser("compare", help="train and evaluate several experts on one scene; per-expert table")
     from moegs.compare import add_arguments
