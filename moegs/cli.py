@@ -20,6 +20,11 @@ time range; ``moegs.render_path``), or ``auto`` (default: orbit for cameras arou
 forward-facing rig); ``test/<i>.png``, ground truth | render | error ``[H, 3W, 3]`` of each test view (error:
 mean absolute error x4 through the inferno colour map); ``psnr.csv``, the PSNR of each test view.
 
+Before training, ``train`` checks every ``--set`` value against its config field's type and refuses a flag
+and a ``--set`` of one field that disagree (``moegs.overrides``), refuses images too small for SSIM and LPIPS
+naming the scale argument (``moegs.guards``), and locks its ``--out`` folder (as ``compare`` and ``route``
+do): a second command on the folder gets one line. ``eval`` of an unfinished run says so, with its step.
+
 Heavy modules (experts, rasterizer, loaders) are imported inside the commands, so ``moegs list``
 and ``--help`` stay fast.
 """
@@ -115,15 +120,32 @@ def _run_dir(path: str) -> tuple[Path, dict]:
     return run, meta
 
 
-def _load_run(path: str, device=None):
+def _load_run(path: str, device=None, with_state: bool = False):
     """``(run folder, run config, scene, expert)`` of a finished or interrupted run; the expert on ``device``
-    (None: the CPU) and the scene placed beside it."""
+    (None: the CPU) and the scene placed beside it; ``with_state`` adds its checkpoint state."""
     from moegs.train.entry import load_trained
 
     run, meta = _run_dir(path)
     scene = _load_scene(meta)
-    expert, _ = load_trained(run, scene, expect=meta["expert"], device=device)
-    return run, meta, scene.to(device or "cpu"), expert
+    expert, state = load_trained(run, scene, expect=meta["expert"], device=device)
+    loaded = (run, meta, scene.to(device or "cpu"), expert)
+    return (*loaded, state) if with_state else loaded
+
+
+def unfinished_note(run: Path, meta: dict, state: dict) -> str | None:
+    """``None`` for a finished run (``moegs.train.entry.finished_run``), else a line saying at which step its
+    checkpoint stopped and how to finish it."""
+    from moegs.train.entry import finished_run
+
+    if finished_run(run) is not None:
+        return None
+    steps = [s.get("step") for s in state.get("segments", [state])]
+    at = ", ".join(map(str, steps))
+    iterations = meta["train"].get("iterations")
+    return (
+        f"unfinished run: its checkpoint is at step {at} of {iterations} (no completed metrics.json); the "
+        f"scores above are that checkpoint's, and the `moegs train` that wrote {run} finishes it"
+    )
 
 
 def describe_device(device) -> str:
@@ -134,66 +156,72 @@ def describe_device(device) -> str:
     return device_name(device) + (f" ({gpu})" if gpu else "")
 
 
-def parse_overrides(items: list[str]) -> dict[str, object]:
-    """``["train.iterations=100", "strategy.reset_every=300"]`` -> dotted field -> value (JSON values;
-    anything that is not JSON stays a string)."""
-    out: dict[str, object] = {}
-    for item in items:
-        field, sep, text = item.partition("=")
-        if not sep or not field:
-            raise ValueError(f"--set expects FIELD=VALUE (e.g. train.iterations=100), got {item!r}")
-        try:
-            out[field] = json.loads(text)
-        except json.JSONDecodeError:
-            out[field] = text
-    return out
+def _train_recipe(args: argparse.Namespace):
+    """The recipe of ``moegs train``: ``--set`` values parsed by their fields' types, a flag and a ``--set``
+    of one field that disagree refused (``moegs.overrides``), the config's own checks naming the override."""
+    from moegs import overrides as sets
+    from moegs.recipes import config_for
+
+    texts = sets.split_items(args.set or [])
+    given = sets.typed_overrides(config_for(args.expert, args.scene, args.preset).config, texts)
+    flags = {
+        "--seed": args.seed,
+        "--iterations": args.iterations,
+        "--resolution-scale": args.resolution_scale,
+        "--checkpoint-every": args.checkpoint_every,
+    }
+    overrides = sets.with_flags(given, texts, flags)
+
+    def build(changes):
+        return config_for(args.expert, args.scene, args.preset, overrides=changes)
+
+    recipe = sets.checked_config(build, overrides, texts)
+    if "train.checkpoint_every" not in overrides:  # default: a tenth of the run
+        overrides["train.checkpoint_every"] = max(1, recipe.config.train.iterations // 10)
+        recipe = build(overrides)
+    return recipe
+
+
+def _scale_flag(args: argparse.Namespace) -> str:
+    """The argument that set ``moegs train``'s resolution scale, with its separator, for messages."""
+    if args.resolution_scale is None and any(i.startswith("train.resolution_scale=") for i in args.set or []):
+        return "--set train.resolution_scale="
+    return "--resolution-scale "
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
-    import shutil
-
     from moegs.data import load_scene
+    from moegs.guards import clear_folder, folder_lock, load_checked
     from moegs.outputs import describe_run, format_scores, loss_curves, write_loss_curve
-    from moegs.recipes import config_for
     from moegs.train.entry import train_recipe
     from moegs.train.reuse import finished_run_of
 
-    overrides = parse_overrides(args.set or [])
-    overrides["train.seed"] = args.seed
-    if args.iterations is not None:
-        overrides["train.iterations"] = args.iterations
-    if args.resolution_scale is not None:
-        overrides["train.resolution_scale"] = args.resolution_scale
-    recipe = config_for(args.expert, args.scene, args.preset, overrides=overrides)
-    iterations = recipe.config.train.iterations
-    every = args.checkpoint_every if args.checkpoint_every is not None else max(1, iterations // 10)
-    recipe = config_for(
-        args.expert, args.scene, args.preset, overrides={**overrides, "train.checkpoint_every": every}
-    )
-    out = Path(
-        args.out or Path("runs") / f"{args.expert}_{args.scene.replace(':', '_')}_{args.preset}_s{args.seed}"
-    )
-    finished = (
-        None
-        if args.force
-        else finished_run_of(recipe, out, "--force trains it again, or choose another --out")
-    )
-    if finished is not None:
-        print(
-            f"{out} holds a finished run (test {format_scores(finished['test'])}); left as it is "
-            "(--force trains it again)"
+    recipe = _train_recipe(args)
+    name = f"{args.expert}_{args.scene.replace(':', '_')}_{args.preset}_s{recipe.config.train.seed}"
+    out = Path(args.out or Path("runs") / name)
+    with folder_lock(out):
+        finished = (
+            None
+            if args.force
+            else finished_run_of(recipe, out, "--force trains it again, or choose another --out")
         )
-        return 0
-    if args.force and out.exists():
-        shutil.rmtree(out)
-    scene = load_scene(args.scene, **recipe.load_kwargs)
-    print(scene.summary())
-    print("recipe: " + "; ".join(recipe.steps))
-    print(f"device: {describe_device(args.device)}")
-    _, result = train_recipe(
-        recipe, scene, out, device=args.device, resume=not args.no_resume, progress=not args.quiet
-    )
-    write_loss_curve(loss_curves(out), out, title=f"{args.expert} on {scene.name}")
+        if finished is not None:
+            print(
+                f"{out} holds a finished run (test {format_scores(finished['test'])}); left as it is "
+                "(--force trains it again)"
+            )
+            return 0
+        if args.force:
+            clear_folder(out)
+        scale = recipe.load_kwargs.get("resolution_scale")
+        scene = load_checked(lambda: load_scene(args.scene, **recipe.load_kwargs), scale, _scale_flag(args))
+        print(scene.summary())
+        print("recipe: " + "; ".join(recipe.steps))
+        print(f"device: {describe_device(args.device)}")
+        _, result = train_recipe(
+            recipe, scene, out, device=args.device, resume=not args.no_resume, progress=not args.quiet
+        )
+        write_loss_curve(loss_curves(out), out, title=f"{args.expert} on {scene.name}")
     test = result["test"]
     print(
         f"{args.expert} on {scene.name}: {result['num_gaussians']} Gaussians, "
@@ -220,17 +248,25 @@ def _cmd_recipe(args: argparse.Namespace) -> int:
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
+    from moegs.guards import check_image_sizes
     from moegs.io import write_json
     from moegs.train.evaluate import evaluate
 
-    run, meta, scene, expert = _load_run(args.run, args.device)
+    run, meta, scene, expert, state = _load_run(args.run, args.device, with_state=True)
+    try:
+        check_image_sizes(scene, _load_kwargs(meta).get("resolution_scale"))
+    except ValueError as err:
+        raise ValueError(f"{run} was trained on images too small to score: {err}") from None
     result = evaluate(expert, scene.test, scene.background, args.profile, meta["train"]["backend"])
-    write_json(run / f"eval-{args.profile}.json", result)
+    note = unfinished_note(run, meta, state)
+    write_json(run / f"eval-{args.profile}.json", {**result, "unfinished": note})
     lpips = "n/a" if result["lpips"] is None else f"{result['lpips']:.4f}"
     print(
         f"{meta['expert']} on {scene.name} ({result['num_views']} test views, profile {args.profile}): "
         f"PSNR {result['psnr']:.2f}  SSIM {result['ssim']:.4f}  LPIPS {lpips}"
     )
+    if note:
+        print(note)
     return 0
 
 
@@ -423,14 +459,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="recipe preset: quick (CPU minutes) or paper (the original's recipe for the scene's dataset)",
     )
     p.add_argument("--out", help="run folder (default runs/<expert>_<scene>_<preset>_s<seed>)")
-    p.add_argument("--seed", type=seed, default=0)
+    p.add_argument("--seed", type=seed, help="training seed (default 0, the preset's)")
     p.add_argument("--iterations", type=positive_int, help="override the preset's number of iterations")
     p.add_argument("--resolution-scale", type=unit_scale, help="override the preset's image scale in (0, 1]")
     p.add_argument(
         "--set",
         nargs="*",
         metavar="FIELD=VALUE",
-        help="override config fields by dotted name, e.g. --set strategy.densify_every=50 train.batch_size=1",
+        help="override config fields by dotted name, e.g. --set strategy.densify_every=50 train.batch_size=1 "
+        "(each value is checked against its field's type; a flag of the same field must agree)",
     )
     p.add_argument(
         "--no-resume", action="store_true", help="start over even if the run folder has a checkpoint"

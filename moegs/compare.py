@@ -12,6 +12,9 @@ from its checkpoint. The
 table (PSNR / SSIM / LPIPS on the scene's test views, training seconds, final number of Gaussians) is
 written as ``<out>/table.md`` and ``<out>/table.json``.
 
+``--experts`` naming one expert twice is refused; ``<out>`` is locked while compare runs (a second
+command on it gets one line, ``moegs.guards.folder_lock``).
+
 Scene loading: each recipe's background and resolution; ``--frames`` picks a frame window on datasets
 that have one (the ``quick`` preset defaults to the first ``QUICK_FRAMES`` frames there).
 """
@@ -56,19 +59,31 @@ def scene_kwargs(recipe, frames: tuple[int, int] | None) -> dict[str, Any]:
     return kwargs
 
 
+SCALE_FIELD = "train.resolution_scale="
+"""How a recipe's scale is named when its images are too small for the metrics (``moegs.guards``): the field
+``moegs train --set`` changes."""
+
+
 def run_expert(
     recipe: Recipe, out: Path, frames: tuple[int, int] | None, scenes: dict, progress: bool, device=None
 ) -> dict:
     """Train (or resume) the expert of ``recipe`` (``moegs.recipes.config_for``) into ``out`` on ``device``
     (None: the CPU); returns the loop's result. ``scenes`` caches loaded scenes by their loader
-    arguments."""
+    arguments; a scene whose images are too small for the metrics is refused before training
+    (``moegs.guards.load_checked``)."""
     from moegs.data import load_scene
+    from moegs.guards import load_checked
     from moegs.train.entry import train_recipe
 
     kwargs = scene_kwargs(recipe, frames)
     key = json.dumps(kwargs, sort_keys=True, default=str)
     if key not in scenes:
-        scenes[key] = load_scene(recipe.scene, **kwargs)
+        try:
+            scenes[key] = load_checked(
+                lambda: load_scene(recipe.scene, **kwargs), kwargs.get("resolution_scale"), SCALE_FIELD
+            )
+        except ValueError as err:
+            raise ValueError(f"{recipe.expert}'s {recipe.preset} recipe: {err}") from err
     return train_recipe(recipe, scenes[key], out, device=device, progress=progress)[1]
 
 
@@ -145,17 +160,26 @@ def compare(
         run's config differs from the preset's (``moegs.train.reuse``), empty for a run of the preset.
     """
     from moegs.experts import get_spec, list_experts
-    from moegs.io import write_json
-    from moegs.recipes import config_for
-    from moegs.train.reuse import reusable_run
+    from moegs.guards import check_distinct, folder_lock
 
     names = [s.name for s in list_experts() if not s.composite] if experts == ["all"] else experts
     if not names:
         raise ValueError("--experts: expected comma-separated registry names or 'all', got none")
     for name in names:
         get_spec(name)  # unknown names fail before any training
+    check_distinct(names, "--experts")
     window = preset_frames(scene, preset, frames)
     out = Path(out) if out is not None else Path("runs") / f"compare_{scene.replace(':', '_')}_{preset}"
+    with folder_lock(out):
+        return _compare(names, scene, preset, out, window, progress, device)
+
+
+def _compare(names: list[str], scene: str, preset: str, out: Path, window, progress: bool, device) -> dict:
+    """``compare`` of ``names`` into ``out``, whose lock the caller holds."""
+    from moegs.io import write_json
+    from moegs.recipes import config_for
+    from moegs.train.reuse import reusable_run
+
     rows, skipped, scenes = [], [], {}
     for name in names:
         run_dir = out / name

@@ -9,6 +9,8 @@ reused); ``--runs`` takes finished run folders (``moegs train``'s, or ``<out>/<e
 route) as they are, on the scene, preset and background they trained with (``load_runs``), and
 trains nothing but the router.
 
+``--out`` is locked while route runs (a second command on it gets one line, ``moegs.guards.folder_lock``).
+
 Layout of ``--out`` (default ``runs/route_<scene>_<preset>_s<seed>``)::
 
     <expert>/            each expert's training run with --experts (``moegs compare`` layout: reused, resumed)
@@ -200,9 +202,11 @@ def load_runs(paths: list[str | Path], scene: str | None = None, preset: str | N
     """
     from moegs.compare import preset_frames
     from moegs.data import load_scene
+    from moegs.guards import check_distinct
 
     folders = [Path(p) for p in paths]
-    if len(folders) < 2 or len({p.resolve() for p in folders}) != len(folders):
+    check_distinct(folders, "--runs", key=Path.resolve)
+    if len(folders) < 2:
         raise ValueError(f"--runs needs at least two different run folders to route between, got {paths}")
     runs = [read_run(p) for p in folders]
     checks = (
@@ -393,7 +397,16 @@ def default_out(scene_name: str, preset: str, seed: int) -> Path:
 
 
 def main(args: argparse.Namespace) -> int:
+    """``moegs route``; its ``--out`` folder is locked while it trains (``moegs.guards.folder_lock``)."""
+    from contextlib import ExitStack
+
+    with ExitStack() as lock:
+        return _main(args, lock)
+
+
+def _main(args: argparse.Namespace, lock) -> int:
     from moegs.experts import get_spec
+    from moegs.guards import check_distinct, folder_lock
     from moegs.moe import load_moe, router_config_for, train_router
     from moegs.moe.model import ROUTER_CHECKPOINT
 
@@ -404,7 +417,7 @@ def main(args: argparse.Namespace) -> int:
             )
         experts, scene, preset, runs = _trained_runs(args.runs, args.scene, args.preset, args.device)
         scene_name = scene.name  # the runs' (load_runs checked that they agree)
-        out = Path(args.out or default_out(scene_name, preset, args.seed))
+        out = lock.enter_context(folder_lock(args.out or default_out(scene_name, preset, args.seed)))
         check_router_runs(out / f"router_{args.router}", runs, args.force)
     else:
         if args.scene is None:
@@ -412,10 +425,11 @@ def main(args: argparse.Namespace) -> int:
         names = [n.strip() for n in args.experts.split(",") if n.strip()]
         for name in names:
             get_spec(name)  # unknown names fail before any training
-        if len(names) < 2 or len(set(names)) != len(names):
+        check_distinct(names, "--experts")
+        if len(names) < 2:
             raise ValueError(f"--experts needs at least two different experts to route between, got {names}")
         preset, scene_name = args.preset or "quick", args.scene
-        out = Path(args.out or default_out(scene_name, preset, args.seed))
+        out = lock.enter_context(folder_lock(args.out or default_out(scene_name, preset, args.seed)))
         runs = [out / name for name in names]
         check_router_runs(out / f"router_{args.router}", runs, args.force)
         experts, scene = _experts(

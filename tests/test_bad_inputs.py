@@ -138,6 +138,16 @@ def _crafted_type(run: Path) -> None:
     save_file(tensors, str(path), metadata={"moegs": json.dumps(tree)})
 
 
+def _small_images(run: Path) -> None:
+    """The run's config says it trained at scale 0.2 (20x20 images: too small for LPIPS)."""
+
+    def change(data: dict) -> None:
+        data["train"]["resolution_scale"] = 0.2
+        data["recipe"]["overrides"]["train.resolution_scale"] = 0.2
+
+    _edit_config(run, change)
+
+
 BROKEN_RUNS = {  # name: (damage(run), argv after the command, expected message; {run} = the run folder)
     "no config.json": (lambda r: (r / "config.json").unlink(), "eval", "{run} is not a training run (no config.json); train one with `moegs train`"),
     "config.json not JSON": (lambda r: (r / "config.json").write_text("{oops"), "eval", "{run}/config.json: not valid JSON (Expecting property name enclosed in double quotes: line 1 column 2 (char 1))"),
@@ -152,6 +162,7 @@ BROKEN_RUNS = {  # name: (damage(run), argv after the command, expected message;
     "crafted config type": (_crafted_type, "eval", "config _type 'subprocess:Popen' is not Strategy or a moegs subclass of it"),
     "render: truncated checkpoint": (lambda r: (r / "checkpoint.safetensors").write_bytes(b"\x00" * 9), "render", "{run}/checkpoint.safetensors: not a readable safetensors file ("),
     "export: no config.json": (lambda r: (r / "config.json").unlink(), "export", "{run} is not a training run (no config.json); train one with `moegs train`"),
+    "images too small to score": (_small_images, "eval", "{run} was trained on images too small to score: --resolution-scale 0.2 makes synthetic:dnerf_like's images 20x20 pixels ("),
 }  # fmt: skip
 
 
@@ -170,8 +181,27 @@ COMMANDS = [
     (["train", "--expert", "nosuch", "--scene", SCENE], f"moegs train: unknown expert 'nosuch'; registered experts: {EXPERTS}"),
     ([*TRAIN, "--set", "oops"], "moegs train: --set expects FIELD=VALUE (e.g. train.iterations=100), got 'oops'"),
     ([*TRAIN, "--set", "nosuch=1"], "moegs train: StaticConfig has no field 'nosuch' (in 'nosuch')"),
+    ([*TRAIN, "--set", "train.nosuch=1"], "moegs train: TrainConfig has no field 'nosuch' (in 'train.nosuch'); fields: ['backend', "),
+    ([*TRAIN, "--set", "train=1"], "moegs train: 'train' is a group of fields; set one of them, e.g. train.iterations=..."),
+    ([*TRAIN, "--set", "train.batch_size=true"], "moegs train: --set train.batch_size=true: train.batch_size expects an int, got true"),
+    ([*TRAIN, "--set", "train.iterations=-5"], "moegs train: --set train.iterations=-5: train.iterations expects a positive int, got -5"),
+    ([*TRAIN, "--iterations", "3", "--set", "train.iterations=abc"], "moegs train: --set train.iterations=abc: train.iterations expects an int, got abc"),
+    ([*TRAIN, "--set", "train.lambda_dssim=inf"], "moegs train: --set train.lambda_dssim=inf: train.lambda_dssim expects a finite number, got inf"),
+    ([*TRAIN, "--set", "train.lambda_dssim=2"], "moegs train: --set train.lambda_dssim=2: TrainConfig.lambda_dssim must be in [0, 1], got 2.0"),
+    ([*TRAIN, "--set", "train.resolution_scale=0"], "moegs train: --set train.resolution_scale=0: train.resolution_scale expects a scale in (0, 1], got 0"),
+    ([*TRAIN, "--set", "strategy.densify_every=0"], "moegs train: --set strategy.densify_every=0: strategy.densify_every expects a positive int, got 0"),
+    ([*TRAIN, "--set", "train.seed=1", "train.seed=2"], "moegs train: --set train.seed is given twice (1 and 2); give it once"),
+    ([*TRAIN, "--seed", "1", "--set", "train.seed=5"], "moegs train: --seed 1 and --set train.seed=5 disagree; give one of them"),
+    ([*TRAIN, "--iterations", "3", "--set", "train.iterations=4"], "moegs train: --iterations 3 and --set train.iterations=4 disagree; give one of them"),
+    ([*TRAIN, "--resolution-scale", "0.5", "--set", "train.resolution_scale=0.4"], "moegs train: --resolution-scale 0.5 and --set train.resolution_scale=0.4 disagree; give one of them"),
+    ([*TRAIN, "--checkpoint-every", "2", "--set", "train.checkpoint_every=3"], "moegs train: --checkpoint-every 2 and --set train.checkpoint_every=3 disagree; give one of them"),
+    ([*TRAIN, "--resolution-scale", "0.1"], "moegs train: --resolution-scale 0.1 makes synthetic:dnerf_like's images 10x10 pixels ("),
+    ([*TRAIN, "--set", "train.resolution_scale=0.2"], "moegs train: --set train.resolution_scale=0.2 makes synthetic:dnerf_like's images 20x20 pixels ("),
+    ([*TRAIN, "--resolution-scale", "0.001"], "moegs train: --resolution-scale 0.001 makes the images 0x0 pixels; SSIM and LPIPS need at least 31x31 (SSIM's window: 11 px, LPIPS-Alex: 31): use a larger scale"),
     (["route", "--experts", "static", "--scene", SCENE], "moegs route: --experts needs at least two different experts to route between, got ['static']"),
-    (["route", "--experts", "static,static", "--scene", SCENE], "moegs route: --experts needs at least two different experts to route between, got ['static', 'static']"),
+    (["route", "--experts", "static,static", "--scene", SCENE], "moegs route: --experts names 'static' more than once (a duplicate); give each once"),
+    (["route", "--experts", "static,mcmc,static", "--scene", SCENE], "moegs route: --experts names 'static' more than once (a duplicate); give each once"),
+    (["compare", "--experts", "static,mcmc,static", "--scene", SCENE], "moegs compare: --experts names 'static' more than once (a duplicate); give each once"),
     (["route", "--experts", "static,nosuch", "--scene", SCENE], f"moegs route: unknown expert 'nosuch'; registered experts: {EXPERTS}"),
     (["route", "--experts", "static,mcmc"], "moegs route: --experts needs --scene (the runs of --runs name theirs)"),
     (["compare", "--experts", ",", "--scene", SCENE], "moegs compare: --experts: expected comma-separated registry names or 'all', got none"),
@@ -188,6 +218,78 @@ def test_bad_names_fail_with_one_line(argv, message, tmp_path, capsys):
     line = _one_line(capsys.readouterr().err)
     assert line.startswith(message), line
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").rglob("*.safetensors"))
+
+
+SMALL = [  # (argv, the end of its line: the smallest scale that works, named by the argument that set it)
+    ([*TRAIN, "--resolution-scale", "0.1"], "; SSIM and LPIPS need at least 31x31 (SSIM's window: 11 px, LPIPS-Alex: 31): use --resolution-scale 0.31 or more"),
+    ([*TRAIN, "--set", "train.resolution_scale=0.2"], ": use --set train.resolution_scale=0.31 or more"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("argv", "end"), SMALL, ids=[a[-1] for a, _ in SMALL])
+def test_images_too_small_for_the_metrics_name_the_smallest_scale(argv, end, tmp_path, capsys):
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 2
+    assert _one_line(capsys.readouterr().err).endswith(end)
+    assert not (tmp_path / "out").exists()  # refused before anything was written
+
+
+HOLD = "import fcntl, os, sys, time; fd = os.open(sys.argv[1], os.O_RDONLY); fcntl.flock(fd, fcntl.LOCK_EX); print('held', flush=True); time.sleep(60)"
+
+
+@pytest.mark.parametrize("command", ["train", "route", "compare"])
+def test_a_second_writer_of_a_run_folder_gets_one_line(command, tmp_path, capsys):
+    """While another process holds the folder (a ``moegs train`` on it: ``moegs.guards.folder_lock``), a second
+    command on the same ``--out`` exits 2 with one line and writes nothing."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    out.mkdir()
+    argv = {
+        "train": [*TRAIN, "--iterations", "1"],
+        "route": ROUTE,
+        "compare": [*COMPARE, "--experts", "static"],
+    }
+    holder = subprocess.Popen([sys.executable, "-c", HOLD, str(out)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        assert main([*argv[command], "--out", str(out), "--quiet"]) == 2
+    finally:
+        holder.kill()
+        holder.wait()
+    held = f"{out} is in use by another moegs command (it holds the folder's lock); wait for it to end"
+    assert _one_line(capsys.readouterr().err) == f"moegs {command}: {held} or choose another --out"
+    assert not any(out.iterdir())
+
+
+def test_eval_of_an_unfinished_run_says_so(tmp_path, capsys):
+    """A run stopped at step 2 of 4 (as if killed): ``moegs eval`` scores its checkpoint and says that the run
+    is unfinished, at which step, and how to finish it."""
+    from moegs.data import load_scene
+    from moegs.recipes import config_for
+    from moegs.train.entry import train_recipe
+
+    overrides = {"train.iterations": 4, "train.resolution_scale": 0.4, "train.checkpoint_every": 2}
+    recipe = config_for("static", SCENE, "quick", overrides=overrides)
+    run = tmp_path / "run"
+    train_recipe(recipe, load_scene(SCENE, **recipe.load_kwargs), run, stop_after=2, progress=False)
+    capsys.readouterr()
+    assert main(["eval", str(run)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[0].startswith("static on synthetic:dnerf_like (5 test views, profile moegs): PSNR ")
+    assert lines[1] == (
+        "unfinished run: its checkpoint is at step 2 of 4 (no completed metrics.json); the scores above are "
+        f"that checkpoint's, and the `moegs train` that wrote {run} finishes it"
+    )
+    assert json.loads((run / "eval-moegs.json").read_text())["unfinished"] == lines[1]
+
+
+def test_eval_of_a_finished_run_says_nothing_more(finished_run, tmp_path, capsys):
+    run = _copy_run(finished_run, tmp_path)
+    capsys.readouterr()
+    assert main(["eval", str(run)]) == 0
+    assert len(capsys.readouterr().out.strip().splitlines()) == 1
+    assert json.loads((run / "eval-moegs.json").read_text())["unfinished"] is None
 
 
 def test_debug_shows_the_traceback():
@@ -563,6 +665,17 @@ def test_camera_checks_geometry(case):
 
 
 def test_the_table_has_at_least_100_cases():
-    tables = [ARGUMENTS, BROKEN_RUNS, COMMANDS, DNERF, PANOPTIC, HYPERNERF, CHECKPOINTS, RESULTS, ARTEFACTS]
+    tables = [
+        ARGUMENTS,
+        BROKEN_RUNS,
+        COMMANDS,
+        SMALL,
+        DNERF,
+        PANOPTIC,
+        HYPERNERF,
+        CHECKPOINTS,
+        RESULTS,
+        ARTEFACTS,
+    ]
     tables += [RASTERIZE, FRAMES, CAMERAS]
     assert sum(map(len, tables)) >= 100

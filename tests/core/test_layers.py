@@ -63,7 +63,18 @@ LAYERS = (
         "recipes",
     ),
     ("moe", "mode"),
-    ("cli", "cli_types", "compare", "route", "render_path", "outputs", "exports", "viewer"),
+    (
+        "cli",
+        "cli_types",
+        "compare",
+        "route",
+        "render_path",
+        "outputs",
+        "exports",
+        "viewer",
+        "overrides",
+        "guards",
+    ),
 )
 """The library's layers, lowest first (docs/api.md, "Layers"): a module imports only from its own layer
 or lower ones. Training is two layers: the components an expert declares (config, optimiser groups,

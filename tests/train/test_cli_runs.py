@@ -357,7 +357,7 @@ def test_route_runs_needs_two_different_run_folders(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     cases = {
         (a,): "--runs needs at least two different run folders to route between",
-        (a, a): "--runs needs at least two different run folders to route between",
+        (a, a): f"--runs names {str(a)!r} more than once (a duplicate); give each once",
         (a, str(tmp_path / "empty")): f"{tmp_path / 'empty'} is not a training run (no config.json)",
     }
     for runs, message in cases.items():
