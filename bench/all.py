@@ -311,7 +311,15 @@ def write_outputs(
     from bench.runlog import runs_of
     from bench.sidebyside import compare
     from bench.sidebyside import write_latex as write_comparison
-    from bench.signals import compute_rows, expert_rows, noise_for, routing_rows, row_noise_for, run_noise
+    from bench.signals import (
+        compute_rows,
+        expert_rows,
+        noise_for,
+        pair_noise_for,
+        routing_rows,
+        row_noise_for,
+        run_noise,
+    )
     from bench.values import SpecValues
 
     reports, written, comparisons = [], [], []
@@ -320,7 +328,9 @@ def write_outputs(
     noise = run_noise(plan, workspace, quick_summary)
     for sp in plan.specs:
         names = [s.name for s in sp.scenes]
-        values = SpecValues(sp, workspace, noise_for(noise, names), row_noise_for(noise, names))
+        values = SpecValues(
+            sp, workspace, noise_for(noise, names), row_noise_for(noise, names), pair_noise_for(noise, names)
+        )
         latex, figures = None, []
         if sp.spec.id in selected:
             if not sp.spec.figure:

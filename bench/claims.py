@@ -6,14 +6,15 @@ Column selectors: ``"@mean"`` (the dataset average: the paper's ``Average`` colu
 computed scenes), ``"@scenes"`` (every scene column that has values), or a list of printed columns.
 ``better`` respects each metric's direction (LPIPS, MDC: lower is better).
 
-Noise: a view may carry ``noise`` (metric name -> the seed-to-seed spread measured in this run: the
-largest row's on the table's scenes) and ``row_noise`` ((row, metric) -> a row's own spread). A
-comparison is judged against the larger of its rows' own spreads when every row has one, else against the
-scene-wide one (``noise_of``). A comparison whose margin is within it decides nothing: the claim is
-"within noise" unless another comparison fails beyond the noise. An undecided claim still says which
-way it leans (``leans``): "with the paper" when the same comparisons hold at zero noise, "against the
-paper" when they fail. The paper's own numbers carry no noise. A run with no spread at all (one seed and
-none borrowed) judges nothing: its claims are "not judged" (``bench.report``).
+Noise: a view may carry ``noise`` (metric name -> the seed-to-seed spread measured in this run: the largest
+row's on the table's scenes), ``row_noise`` ((row, metric) -> a row's own spread) and ``pair_noise`` ((a, b,
+metric) -> the spread of the per-seed difference of two rows trained with the same seeds). A comparison of
+two such rows is judged against their paired spread, else against the larger of its rows' own spreads when
+every row has one, else against the scene-wide one (``noise_of``). A comparison whose margin is within it
+decides nothing: the claim is "within noise" unless another comparison fails beyond the noise. An undecided
+claim still says which way it leans (``leans``): "with the paper" when the same comparisons hold at zero
+noise, "against the paper" when they fail. The paper's own numbers carry no noise. A run with no spread at
+all (one seed and none borrowed) judges nothing: its claims are "not judged" (``bench.report``).
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ class _WithoutNoise:
 
     noise: dict[str, float] = {}
     row_noise: dict[tuple[str, str], float] = {}
+    pair_noise: dict[tuple[str, str, str], float] = {}
 
     def __init__(self, view: ValuesView) -> None:
         self._view = view
@@ -84,13 +86,24 @@ def _at(v: ValuesView, column: str, metric_name: str) -> str:
 
 
 def noise_of(v: ValuesView, metric_name: str, rows: Sequence[str] = ()) -> float:
-    """The seed-to-seed spread a comparison of ``rows`` on ``metric_name`` is judged against: the largest
-    of the rows' own spreads when each has one (``row_noise``), else the view's scene-wide spread (0
-    when it has none)."""
+    """The seed-to-seed spread a comparison of ``rows`` on ``metric_name`` is judged against: for two
+    rows trained with the same seeds, the spread of their per-seed difference (``pair_noise``); else the
+    largest of the rows' own spreads when each has one (``row_noise``); else the view's scene-wide spread
+    (0 when it has none)."""
+    if len(rows) == 2:
+        paired = getattr(v, "pair_noise", {}).get((*sorted(rows), metric_name))
+        if paired is not None:
+            return float(paired)
     own = [getattr(v, "row_noise", {}).get((row, metric_name)) for row in rows]
     if own and all(x is not None for x in own):
         return float(max(own))
     return float(getattr(v, "noise", {}).get(metric_name, 0.0))
+
+
+def noise_name(v: ValuesView, metric_name: str, rows: Sequence[str]) -> str:
+    """What ``noise_of`` used, for a claim's detail: ``paired spread`` or ``seed spread``."""
+    paired = len(rows) == 2 and (*sorted(rows), metric_name) in getattr(v, "pair_noise", {})
+    return "paired spread" if paired else "seed spread"
 
 
 def _compare(
@@ -139,7 +152,7 @@ def better(
             if x is None or y is None:
                 continue
             noise = noise_of(v, metric, (a, o))
-            spread = f", seed spread {noise:.3g}" if noise > 0 else ""
+            spread = f", {noise_name(v, metric, (a, o))} {noise:.3g}" if noise > 0 else ""
             checked.append(f"{_at(v, col, metric)}: {_fmt(x)} vs {o} {_fmt(y)} (Δ {x - y:+.3g}{spread})")
             status, distance = _compare(x, y, metric, strict, margin, noise)
             statuses.append(status)
@@ -244,7 +257,7 @@ def within(
         if abs(x - y) > tolerance + noise:
             bad.append(gap)
         elif abs(x - y) > tolerance:
-            close.append(f"{gap} by less than the seed spread {noise:.3g}")
+            close.append(f"{gap} by less than the {noise_name(v, metric, (a, b))} {noise:.3g}")
             undecided.append((abs(x - y) - tolerance, noise))
     if not checked:
         return ClaimResult(NA, f"{a} / {b} have no common {metric}")

@@ -320,7 +320,9 @@ def noise_markdown(noise: dict[str, Any]) -> list[str]:
     if not scenes:
         return ["- **Noise**: no row finished two seeds and none was borrowed: claims are not judged."]
     lines = [
-        "- **Noise**: a comparison of rows that trained with several seeds is judged against the larger of "
+        "- **Noise**: a comparison of two rows that trained with the same seeds is judged against the "
+        "spread of their per-seed difference (paired spread: shared experts or seeds make it smaller than "
+        "either row's own); of rows that trained with several seeds otherwise, against the larger of "
         "their own seed-to-seed spreads (max - min over seeds); any other against the largest spread of its "
         "table's scenes: a scene's own where its cells were trained with several seeds, else the "
         "largest spread measured on a stand-in; a scene this run trains once borrows the "
@@ -335,8 +337,9 @@ def noise_markdown(noise: dict[str, Any]) -> list[str]:
         "the way it leans: 'with the paper' when its comparisons hold at zero noise, 'against the paper' "
         "when they fail.",
         "",
-        "| scene | seeds | from | PSNR spread per row (dB) | largest | largest, dynamic region |",
-        "|---|---|---|---|---|---|",
+        "| scene | seeds | from | PSNR spread per row (dB) | paired PSNR spread (dB) | largest "
+        "| largest, dynamic region |",
+        "|---|---|---|---|---|---|---|",
     ]
     for name, entry in sorted(scenes.items()):
         rows = ", ".join(f"{row} {_num(v.get('PSNR'))}" for row, v in entry["rows"].items())
@@ -347,8 +350,13 @@ def noise_markdown(noise: dict[str, Any]) -> list[str]:
         if entry.get("pooled_with"):
             own = (entry.get("own_metrics") or {}).get("PSNR")
             source += f"; pooled with {entry['pooled_with']} (this run's own largest: {_num(own)})"
+        pairs = ", ".join(
+            f"{a} - {b} {_num(p['metrics'].get('PSNR'))}"
+            for p in entry.get("pairs") or []
+            for a, b in [p["rows"]]
+        )
         lines.append(
-            f"| {label} | {entry['seeds']} | {source} | {rows} "
+            f"| {label} | {entry['seeds']} | {source} | {rows} | {pairs or '–'} "
             f"| {_num(metrics.get('PSNR'))} | {_num(metrics.get('PSNR dynamic'))} |"
         )
     return [*lines, ""]

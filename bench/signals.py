@@ -174,7 +174,42 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
             entry["metrics"][name] = max(entry["metrics"].get(name, 0.0), spread)
     for scene, entry in scenes.items():
         entry["cells"] = digest(sorted(cells[scene]))
+        entry["pairs"] = _paired_spreads(per_seed, scene)
     return {"preset": plan.preset.name, "scenes": scenes, **_stand_in_spread(scenes)}
+
+
+def _paired_spreads(
+    per_seed: dict[tuple[str, str, str, str | None], dict[int, tuple[str, dict[str, Any]]]], scene: str
+) -> list[dict[str, Any]]:
+    """``[{"rows": [a, b], "seeds": n, "metrics": {name: spread}}]``: for two rows of one table and column
+    on ``scene`` trained with the same two or more seeds, the spread (max - min over those seeds) of the
+    per-seed difference a - b: the noise of the difference a claim compares, which shared experts or seeds
+    make smaller than either row's own spread. A pair measured in several tables keeps its largest."""
+    groups: dict[tuple[str, str | None], dict[str, dict[int, dict[str, Any]]]] = {}
+    for (name, spec_id, row, column), seeds in per_seed.items():
+        if name == scene:
+            groups.setdefault((spec_id, column), {})[row] = {s: m for s, (_, m) in seeds.items()}
+    pairs: dict[tuple[str, str], dict[str, Any]] = {}
+    for rows in groups.values():
+        names = sorted(rows)
+        for i, a in enumerate(names):
+            for b in names[i + 1 :]:
+                common = sorted(set(rows[a]) & set(rows[b]))
+                if len(common) < 2:
+                    continue
+                entry = pairs.setdefault((a, b), {"rows": [a, b], "seeds": len(common), "metrics": {}})
+                entry["seeds"] = max(entry["seeds"], len(common))
+                for metric_name, m in METRICS.items():
+                    diffs = [_difference(rows[a][s], rows[b][s], m.key) for s in common]
+                    if None not in diffs:
+                        spread = max(diffs) - min(diffs)
+                        entry["metrics"][metric_name] = max(entry["metrics"].get(metric_name, 0.0), spread)
+    return [pairs[k] for k in sorted(pairs)]
+
+
+def _difference(x: dict[str, Any], y: dict[str, Any], key: str) -> float | None:
+    a, b = x.get(key), y.get(key)
+    return None if a is None or b is None else a - b
 
 
 def _stand_in_spread(scenes: dict[str, dict[str, Any]]) -> dict[str, Any]:
@@ -242,6 +277,10 @@ def _pool(entry: dict[str, Any], other: dict[str, Any]) -> None:
     those are larger; ``entry`` then keeps its own as ``own_metrics`` and names the other run in
     ``pooled_with``."""
     larger = {name: v for name, v in other["metrics"].items() if v > entry["metrics"].get(name, 0.0)}
+    theirs = {tuple(p["rows"]): p["metrics"] for p in other.get("pairs", [])}
+    for pair in entry.get("pairs", []):
+        for name, v in theirs.get(tuple(pair["rows"]), {}).items():
+            pair["metrics"][name] = max(pair["metrics"].get(name, 0.0), v)
     if larger:
         entry["own_metrics"] = dict(entry["metrics"])
         entry["metrics"].update(larger)
@@ -286,6 +325,19 @@ def row_noise_for(noise: dict[str, Any], scene_names: list[str]) -> dict[tuple[s
             for name, spread in spreads.items():
                 if spread is not None:
                     out[(row, name)] = max(out.get((row, name), 0.0), spread)
+    return out
+
+
+def pair_noise_for(noise: dict[str, Any], scene_names: list[str]) -> dict[tuple[str, str, str], float]:
+    """``{(a, b, metric): spread}`` with ``a < b``: the spread of the per-seed difference of two rows
+    (``_paired_spreads``), the largest over ``scene_names``; a comparison of the two is judged against it
+    (``bench.claims.noise_of``)."""
+    out: dict[tuple[str, str, str], float] = {}
+    for scene in scene_names:
+        for pair in (noise.get("scenes") or {}).get(scene, {}).get("pairs") or []:
+            a, b = pair["rows"]
+            for name, spread in pair["metrics"].items():
+                out[(a, b, name)] = max(out.get((a, b, name), 0.0), spread)
     return out
 
 

@@ -107,6 +107,7 @@ class SpecValues:
         workspace: Workspace,
         noise: dict[str, float] | None = None,
         row_noise: dict[tuple[str, str], float] | None = None,
+        pair_noise: dict[tuple[str, str, str], float] | None = None,
     ) -> None:
         self.plan = plan
         self.noise = dict(noise or {})
@@ -115,6 +116,9 @@ class SpecValues:
         self.row_noise = dict(row_noise or {})
         """``(row, metric)`` -> the spread a row measured itself (``bench.signals.row_noise_for``): a
         comparison of rows that all have one is judged against theirs (``bench.claims.noise_of``)."""
+        self.pair_noise = dict(pair_noise or {})
+        """``(a, b, metric)`` with ``a < b`` -> the spread of the two rows' per-seed difference
+        (``bench.signals.pair_noise_for``): a comparison of the two is judged against it."""
         self.spec = plan.spec
         self.results = SlotResults(plan, workspace)
         self.paper_table: PaperTable | None = load_paper_numbers(self.spec.paper) if self.spec.paper else None

@@ -643,6 +643,36 @@ def test_a_comparison_is_judged_against_its_rows_own_spreads():
     assert within(view, "A", "B", tolerance=0.25).status == NOISE  # |0.5| - 0.25 < 0.3
 
 
+def test_two_rows_trained_with_the_same_seeds_are_judged_against_their_paired_spread():
+    """The spread of the per-seed difference of two rows (which shared experts or seeds make smaller than
+    either row's own spread) decides their comparison; other comparisons keep the rows' spreads."""
+    view = View(psnr(A=28.5, B=28.3, C=28.0), {"PSNR": 0.9})
+    view.row_noise = {("A", "PSNR"): 0.6, ("B", "PSNR"): 0.6, ("C", "PSNR"): 0.6}
+    view.pair_noise = {("A", "B", "PSNR"): 0.1}
+    assert better(view, "A", "B").status == HELD and "paired spread 0.1" in better(view, "A", "B").detail
+    assert better(view, "B", "A").status == FAILED  # the pair is unordered
+    assert better(view, "A", "C").status == NOISE and "seed spread 0.6" in better(view, "A", "C").detail
+
+
+def test_paired_spreads_come_from_the_seeds_both_rows_trained():
+    from bench.signals import _paired_spreads, pair_noise_for
+
+    def seeds(*psnrs):
+        return {s: (f"k{s}", {"psnr": v}) for s, v in enumerate(psnrs)}
+
+    per_seed = {
+        ("s", "tab17", "MoE", None): seeds(30.0, 31.0, 29.0),
+        ("s", "tab17", "Grid4D", None): seeds(29.8, 30.9, 28.7),  # differences 0.2, 0.1, 0.3
+        ("s", "tab17", "Lone", None): {0: ("k", {"psnr": 1.0})},  # one seed: no pair
+        ("t", "tab17", "MoE", None): seeds(1.0, 2.0),  # another scene
+    }
+    [pair] = _paired_spreads(per_seed, "s")
+    assert pair["rows"] == ["Grid4D", "MoE"] and pair["seeds"] == 3
+    assert pair["metrics"]["PSNR"] == pytest.approx(0.2)  # 0.3 - 0.1; each row alone spans 2.2 and 2.3
+    noise = {"scenes": {"s": {"pairs": [pair]}}}
+    assert pair_noise_for(noise, ["s"]) == {("Grid4D", "MoE", "PSNR"): pytest.approx(0.2)}
+
+
 def test_an_undecided_claim_says_how_many_seeds_would_decide_it():
     """A margin d inside a seed spread s: a mean over n seeds has a spread of about s / sqrt(n), so
     ceil((s / d)^2) seeds decide it; the claim's worst comparison counts; on the boundary none does."""
