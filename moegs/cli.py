@@ -8,6 +8,7 @@
     moegs export runs/static-mutant --time 0.5 --out mutant.ply
     moegs compare --experts all --scene panoptic:basketball --preset quick   # one table, all experts
     moegs route --experts deformable,grid4d --scene dnerf:mutant     # MoE-GS router + gate maps
+    moegs view runs/route_dnerf_mutant_quick_s0/router_vapr   # web viewer: time, experts, gates
 
 ``train`` ends by printing the test views' PSNR, SSIM and LPIPS and the files of its run folder:
 ``config.json``, ``checkpoint.safetensors``, ``metrics.json``, ``loss.json`` and ``loss.png`` (the training
@@ -39,6 +40,7 @@ from pathlib import Path
 from moegs.cli_types import (
     add_device_argument,
     add_resume_arguments,
+    non_negative_int,
     positive_int,
     scene_name,
     seed,
@@ -428,6 +430,31 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_view(args: argparse.Namespace) -> int:
+    """Open runs or a router folder in the web viewer (``moegs.viewer``) until Ctrl+C."""
+    import time
+
+    from moegs.viewer.model import load_model
+    from moegs.viewer.render import check_choice
+    from moegs.viewer.server import Viewer, check_port
+
+    check_port(args.host, args.port)
+    start = time.perf_counter()
+    model = load_model(args.runs, args.device)
+    check_choice(args.mode, model.modes, "mode")
+    viewer = Viewer(model, args.host, args.port, size=args.size, mode=args.mode, source=args.source)
+    print(
+        f"{model.label}: {', '.join(model.names)}, {model.num_gaussians:,} Gaussians on "
+        f"{describe_device(args.device)}, opened in {time.perf_counter() - start:.1f} s"
+    )
+    print(f"viewer at {viewer.url} (Ctrl+C stops it)", flush=True)
+    try:
+        viewer.wait()
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
 def _cmd_compare(args: argparse.Namespace) -> int:
     from moegs import compare
 
@@ -540,6 +567,27 @@ def build_parser() -> argparse.ArgumentParser:
         "(default <run>/export_<format>)",
     )
 
+    p = sub.add_parser(
+        "view",
+        help="a local web viewer of trained runs or a MoE-GS router folder: time, experts, gates",
+        description="Serves a page (viser) with a free camera and the dataset's cameras, a time slider with "
+        "play/pause and the modes rgb, depth, alpha, ground truth, error, and for a router folder each "
+        "expert's gate map and the winner map (moegs.viewer).",
+    )
+    p.add_argument(
+        "runs",
+        nargs="+",
+        metavar="RUN",
+        help="a run folder (moegs train), several of one scene, or a router folder (moegs route)",
+    )
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    p.add_argument("--port", type=non_negative_int, default=8080, help="port (default 8080; 0: any free)")
+    p.add_argument("--mode", default="rgb", help="first mode: rgb, depth, alpha, ground truth, error, "
+                   "gate <expert>, winner (default rgb)")  # fmt: skip
+    p.add_argument("--source", help="first image source: blend (a router's) or an expert's name")
+    p.add_argument("--size", type=positive_int, help="longer side of a frame at rest (default the scene's)")
+    add_device_argument(p, "render")
+
     p = sub.add_parser("compare", help="train and evaluate several experts on one scene; per-expert table")
     from moegs.compare import add_arguments
 
@@ -562,6 +610,7 @@ _COMMANDS = {
     "eval": _cmd_eval,
     "render": _cmd_render,
     "export": _cmd_export,
+    "view": _cmd_view,
     "compare": _cmd_compare,
     "route": _cmd_route,
 }

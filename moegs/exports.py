@@ -21,6 +21,7 @@ Formats:
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +55,7 @@ def _rgb(frame: GaussianFrame) -> torch.Tensor:
 def splat_bytes(frame: GaussianFrame) -> bytes:
     """``frame`` (activated values) in the ``.splat`` layout of the module (``32 * N`` bytes)."""
     frame = frame.detach().to("cpu")
-    scales = frame.scales.abs().double()  # only the squares enter the covariance (GaussianFrame)
+    scales = frame.scales.abs().double()  # as positive_scales
     rgba = torch.cat([_rgb(frame).double(), frame.opacities.double()[:, None]], dim=1)
     quats = torch.nn.functional.normalize(frame.quats.double(), dim=-1)
     order = torch.argsort(-(scales.prod(dim=1) * frame.opacities.double()), stable=True)
@@ -89,12 +90,18 @@ def read_splat(path: str | Path) -> dict[str, np.ndarray]:
     }
 
 
+def positive_scales(frame: GaussianFrame) -> GaussianFrame:
+    """``frame`` with ``|scales|``: only their squares enter the covariance (``GaussianFrame``; Deformable
+    3DGS adds its offsets after the activation), and a PLY stores their logarithms."""
+    return replace(frame, scales=frame.scales.abs()) if bool((frame.scales < 0).any()) else frame
+
+
 def write_frame(frame: GaussianFrame, path: str | Path, fmt: str) -> Path:
     """Write ``frame`` to ``path`` in ``fmt`` (one of ``FORMATS``)."""
     from moegs.io import export_ply
 
     if fmt == "ply":
-        return export_ply(frame, path)
+        return export_ply(positive_scales(frame), path)
     if fmt == "splat":
         return write_splat(frame, path)
     raise ValueError(f"unknown export format {fmt!r}; one of {', '.join(FORMATS)}")

@@ -53,20 +53,26 @@ def test_a_run_reloads_its_scene_as_its_training_loaded_it(scene, overrides):
 
 def test_export_writes_the_gaussians_at_the_time_asked(tmp_path, monkeypatch):
     """``moegs export RUN --time t`` exports ``frame(t)`` (a deforming expert's Gaussians move with t)."""
+    import torch
+
     import moegs.cli
     import moegs.io
+    from moegs.gaussians import GaussianFrame
 
     asked, written = [], []
 
     class Expert:
         def frame(self, t):
             asked.append(t)
-            return f"frame at {t}"
+            one = torch.ones(1, 3)
+            return GaussianFrame(t * one, torch.ones(1, 4), -one, torch.ones(1), colors=one)
 
     monkeypatch.setattr(moegs.cli, "_load_run", lambda run: (tmp_path, None, None, Expert()))
     monkeypatch.setattr(moegs.io, "export_ply", lambda frame, path: written.append((frame, path)) or path)
     assert main(["export", str(tmp_path), "--time", "0.25"]) == 0
-    assert asked == [0.25] and written == [("frame at 0.25", tmp_path / "point_cloud_t0.250.ply")]
+    [(frame, path)] = written
+    assert asked == [0.25] and path == tmp_path / "point_cloud_t0.250.ply"
+    assert frame.means.tolist() == [[0.25] * 3] and frame.scales.tolist() == [[1.0] * 3]  # |scales|: logs
 
 
 def test_unknown_expert_lists_valid_names(capsys):
