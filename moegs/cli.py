@@ -582,10 +582,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
     p.add_argument("--port", type=non_negative_int, default=8080, help="port (default 8080; 0: any free)")
-    p.add_argument("--mode", default="rgb", help="first mode: rgb, depth, alpha, ground truth, error, "
-                   "gate <expert>, winner (default rgb)")  # fmt: skip
+    p.add_argument(
+        "--mode",
+        default="rgb",
+        help="first mode: rgb, depth, alpha, ground truth, error, gate <expert>, winner (default rgb)",
+    )
     p.add_argument("--source", help="first image source: blend (a router's) or an expert's name")
-    p.add_argument("--size", type=positive_int, help="longer side of a frame at rest (default the scene's)")
+    p.add_argument(
+        "--size", type=positive_int, help="longer side of a frame at rest (default the scene's, at least 256)"
+    )
     add_device_argument(p, "render")
 
     p = sub.add_parser("compare", help="train and evaluate several experts on one scene; per-expert table")

@@ -32,6 +32,9 @@ from moegs.viewer.render import (
 REST_SECONDS = 0.3
 """How long the camera must rest before a full-resolution frame."""
 
+DEFAULT_SIZE = 256
+"""The least default size of a frame at rest (longer side): the quick preset's images are smaller."""
+
 FREE = "free camera"
 """The camera list's entry of the viewer's own camera."""
 
@@ -64,7 +67,8 @@ class _Tab:
 class Viewer:
     """A running viewer of ``model`` (``moegs.viewer.model.ViewModel``) on ``host:port``.
 
-    ``size``: the longer side of a frame at rest (default: the scene's image size); ``mode`` and
+    ``size``: the longer side of a frame at rest (default: the scene's image size, at least
+    ``DEFAULT_SIZE``); ``mode`` and
     ``source``: what is shown first (``model.modes``, ``model.sources``)."""
 
     def __init__(
@@ -85,7 +89,7 @@ class Viewer:
         check_choice(mode, model.modes, "mode")
         source = check_choice(source or model.sources[0], model.sources, "source")
         reference = (model.scene.test or model.scene.train)[0].camera
-        self.size = size or max(reference.width, reference.height)
+        self.size = size or max(DEFAULT_SIZE, reference.width, reference.height)
         self.views = dict(model.views())
         self._lock = threading.Lock()
         self._stopped = threading.Event()
@@ -163,6 +167,12 @@ class Viewer:
             try:
                 drew = self._frame(client, self._tabs[client.client_id])
             except (AssertionError, KeyError):  # the tab's camera is not known yet, or it closed
+                drew = False
+            except Exception as err:  # noqa: BLE001 - shown on the page; the viewer keeps serving
+                from moegs.errors import describe_error
+
+                self.status.content = f"render failed: {describe_error(err)}"
+                time.sleep(0.5)
                 drew = False
             if not drew:
                 time.sleep(0.01)
