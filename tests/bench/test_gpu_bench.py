@@ -61,7 +61,7 @@ class _Proc:
     started: list[str] = []
     gate: threading.Event | None = None
 
-    def __init__(self, argv, stdout, stderr, env, cwd):
+    def __init__(self, argv, stdout, stderr, env, cwd, **popen_options):
         type(self).started.append(env.get("CUDA_VISIBLE_DEVICES", "-"))
         self.env = env
 
