@@ -66,15 +66,14 @@ def trained_expert(name: str, scene: str, preset: str = "quick") -> TrainedRun:
     """The expert ``name`` trained on ``scene`` with the resolver's recipe at ``preset``
     (``moegs.recipes.config_for``: what ``moegs train`` and the bench run), from the cache or trained now."""
     from moegs.recipes import config_for
-    from moegs.train.checkpoint import load_expert
-    from moegs.train.entry import train_recipe
+    from moegs.train.entry import load_trained, train_recipe
 
     recipe = config_for(name, scene, preset)
     loaded = load_test_scene(scene, **recipe.load_kwargs)
     path = run_dir(name, scene, preset)
     metrics_file = path / "metrics.json"
     if metrics_file.is_file() and json.loads(metrics_file.read_text()).get("completed"):
-        expert, _ = load_expert(path, loaded)
+        expert, _ = load_trained(path, loaded, expect=name)  # a segmented run (STG on mutant) too
         return TrainedRun(expert, loaded, json.loads(metrics_file.read_text()), path)
     expert, metrics = train_recipe(recipe, loaded, path, progress=False)
     return TrainedRun(expert, loaded, metrics, path)
