@@ -103,31 +103,13 @@ def _load_scene(meta: dict):
     return load_scene(meta["scene"], **_load_kwargs(meta))
 
 
-RUN_FIELDS = {"expert": str, "scene": str, "train": dict}
-"""Fields of a run's ``config.json`` the commands read, with their JSON types."""
-
-
-def _run_dir(path: str) -> tuple[Path, dict]:
-    """A run folder and its ``config.json`` (fields checked; errors name the file and the field)."""
-    from moegs.io import read_json
-
-    run = Path(path)
-    config = run / "config.json"
-    if not config.is_file():
-        raise FileNotFoundError(f"{run} is not a training run (no config.json); train one with `moegs train`")
-    meta = read_json(config, "run config")
-    for field, kind in RUN_FIELDS.items():
-        if not isinstance(meta.get(field), kind):
-            raise ValueError(f"{config}: field {field!r} must be a {kind.__name__}, got {meta.get(field)!r}")
-    return run, meta
-
-
 def _load_run(path: str, device=None, with_state: bool = False):
     """``(run folder, run config, scene, expert)`` of a finished or interrupted run; the expert on ``device``
     (None: the CPU) and the scene placed beside it; ``with_state`` adds its checkpoint state."""
     from moegs.train.entry import load_trained
+    from moegs.train.reuse import read_run_config
 
-    run, meta = _run_dir(path)
+    run, meta = read_run_config(path)
     scene = _load_scene(meta)
     expert, state = load_trained(run, scene, expect=meta["expert"], device=device)
     loaded = (run, meta, scene.to(device or "cpu"), expert)

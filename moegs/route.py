@@ -88,8 +88,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 # ---------------------------------------------------------------------- trained run folders (--runs)
-RUN_FIELDS = {"expert": str, "scene": str, "train": dict, "recipe": dict}
-"""Fields of a run's ``config.json`` read here, with their JSON types."""
+ROUTED_RUN_FIELDS = {"expert": str, "scene": str, "train": dict, "recipe": dict}
+"""Fields of a run's ``config.json`` ``--runs`` reads, with their JSON types."""
 
 
 @dataclass(frozen=True)
@@ -142,17 +142,10 @@ def read_run(path: str | Path) -> TrainedRun:
     """The finished run in ``path``; ``FileNotFoundError`` / ``ValueError`` naming the folder and what is
     missing (no ``config.json``, a field of the wrong type, an unfinished run, an expert not registered)."""
     from moegs.experts import get_spec
-    from moegs.io import read_json
     from moegs.train.entry import finished_run
+    from moegs.train.reuse import read_run_config
 
-    run = Path(path)
-    config = run / "config.json"
-    if not config.is_file():
-        raise FileNotFoundError(f"{run} is not a training run (no config.json); train one with `moegs train`")
-    meta = read_json(config, "run config")
-    for field, kind in RUN_FIELDS.items():
-        if not isinstance(meta.get(field), kind):
-            raise ValueError(f"{config}: field {field!r} must be a {kind.__name__}, got {meta.get(field)!r}")
+    run, meta = read_run_config(path, ROUTED_RUN_FIELDS)
     result = finished_run(run)
     if result is None:
         raise ValueError(

@@ -25,6 +25,24 @@ class StaleRunError(ValueError):
     """A folder holds a finished run of another config."""
 
 
+RUN_FIELDS = {"expert": str, "scene": str, "train": dict}
+"""Fields of a run's ``config.json`` the commands read, with their JSON types."""
+
+
+def read_run_config(path: str | Path, fields: dict[str, type] = RUN_FIELDS) -> tuple[Path, dict[str, Any]]:
+    """A run folder and its ``config.json``, each of ``fields`` checked for its JSON type; the errors name
+    the folder or file and the field."""
+    run = Path(path)
+    config = run / "config.json"
+    if not config.is_file():
+        raise FileNotFoundError(f"{run} is not a training run (no config.json); train one with `moegs train`")
+    meta = read_json(config, "run config")
+    for field, kind in fields.items():
+        if not isinstance(meta.get(field), kind):
+            raise ValueError(f"{config}: field {field!r} must be a {kind.__name__}, got {meta.get(field)!r}")
+    return run, meta
+
+
 def config_changes_of(recipe: Recipe, out_dir: str | Path) -> list[str]:
     """Dotted fields of the expert config that ``out_dir/config.json`` records with another value than
     ``recipe``'s (``RUN_ONLY_FIELDS`` aside); empty when they agree."""
