@@ -44,7 +44,7 @@ class Chromium:
     def __enter__(self) -> Chromium:
         from websockets.sync.client import connect
 
-        self._profile = tempfile.TemporaryDirectory()
+        self._profile = tempfile.TemporaryDirectory(ignore_cleanup_errors=True)  # children may still write
         flags = ["--headless=new", "--no-sandbox", "--disable-gpu-sandbox", "--use-angle=swiftshader"]
         flags += ["--enable-unsafe-swiftshader", "--no-first-run", "--disable-extensions", "--mute-audio"]
         flags += [

@@ -103,6 +103,33 @@ def test_every_mode_and_source_draws_an_image(tiny_moe):
     torch.testing.assert_close(alpha, out.gates[0] * alphas[0] + out.gates[1] * alphas[1])
 
 
+def test_every_mode_draws_through_the_cuda_path(tiny_moe, monkeypatch):
+    """A model whose runs recorded the CUDA backend draws every mode and source through our gsplat glue
+    (gsplat's torch kernels on the CPU here), to the compiled kernel's image within one 8-bit level."""
+    from dataclasses import replace
+
+    from helpers.gsplat_reference import install_cpu_glue
+
+    from moegs.render import _cuda
+
+    install_cpu_glue(monkeypatch)
+    calls = []
+    glue = _cuda.render
+    monkeypatch.setattr(_cuda, "render", lambda *a, **k: calls.append(1) or glue(*a, **k))
+    moe = MoEGS(tiny_moe.experts, replace(tiny_moe.moe.config, backend="cuda"))
+    moe.router.load_state_dict(tiny_moe.moe.router.state_dict())
+    cuda = ViewModel(tiny_moe.scene, tiny_moe.experts, moe, "cuda", "tiny on the CUDA path")
+    camera = tiny_moe.scene.test[1].camera
+    truth = tiny_moe.truth(tiny_moe.scene.test[1])
+    for mode in cuda.modes:
+        for source in cuda.sources:
+            drawn = len(calls)
+            ours = render_mode(cuda, camera, mode, source, truth).astype(int)
+            reference = render_mode(tiny_moe, camera, mode, source, truth).astype(int)
+            assert np.abs(ours - reference).max() <= 1, (mode, source)
+            assert len(calls) > drawn or mode == "ground truth", (mode, source)
+
+
 def test_gate_and_winner_maps(tiny_moe):
     camera = tiny_moe.scene.test[0].camera
     gates = tiny_moe.render_moe(camera).gates
