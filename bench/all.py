@@ -42,12 +42,9 @@ import sys
 import time
 from pathlib import Path
 
-from bench.presets import DEFAULT_PRESET, PRESET_ENV, PRESETS, default_preset, get_preset
+from bench.presets import DEFAULT_PRESET, PRESET_ENV, PRESETS, SHORTHANDS, default_preset, get_preset
 from bench.registry import get_spec, list_specs, parse_selection
 from moegs.cli_types import non_negative_int, positive_float, positive_int
-
-SHORTHANDS = ("tiny", "quick", "standard", "paper")
-"""Presets with a flag of their own (``--quick`` is ``--preset quick``)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -110,6 +107,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--dry-run",
         action="store_true",
         help="plan only: print each table's builds and an estimate of H100-hours and CPU-hours, then exit",
+    )
+    p.add_argument(
+        "--seeds",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="train N seeds on every scene of the selected tables (figures and stability runs keep theirs): "
+        "they print N-seed means, and rows trained with the same seeds are judged against the spread of "
+        "their difference; seeds a stability run trained are reused. The report names the claims that "
+        "more seeds would decide",
     )
     p.add_argument("--timeout", type=positive_float, default=None, help="seconds per task (local executor)")
     p.add_argument(
@@ -383,6 +390,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
     from dataclasses import fields, replace
+
+    if args.seeds is not None:
+        preset = replace(preset, table_seeds={**preset.table_seeds, **dict.fromkeys(selected, args.seeds)})
 
     from bench.plan import make_plan
     from bench.runlog import read_runs, record_run

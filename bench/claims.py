@@ -13,8 +13,10 @@ two such rows is judged against their paired spread, else against the larger of 
 every row has one, else against the scene-wide one (``noise_of``). A comparison whose margin is within it
 decides nothing: the claim is "within noise" unless another comparison fails beyond the noise. An undecided
 claim still says which way it leans (``leans``): "with the paper" when the same comparisons hold at zero
-noise, "against the paper" when they fail. The paper's own numbers carry no noise. A run with no spread at
-all (one seed and none borrowed) judges nothing: its claims are "not judged" (``bench.report``).
+noise, "against the paper" when they fail. The paper's own numbers carry no noise, nor does a deterministic
+quantity (``Metric.deterministic``: a model's memory is its size, exact at every seed). A run with no
+spread at all (one seed and none borrowed) judges nothing but deterministic quantities: its other claims
+are "not judged" (``bench.report``).
 """
 
 from __future__ import annotations
@@ -89,7 +91,9 @@ def noise_of(v: ValuesView, metric_name: str, rows: Sequence[str] = ()) -> float
     """The seed-to-seed spread a comparison of ``rows`` on ``metric_name`` is judged against: for two
     rows trained with the same seeds, the spread of their per-seed difference (``pair_noise``); else the
     largest of the rows' own spreads when each has one (``row_noise``); else the view's scene-wide spread
-    (0 when it has none)."""
+    (0 when it has none). A deterministic metric has none."""
+    if metric(metric_name).deterministic:
+        return 0.0
     if len(rows) == 2:
         paired = getattr(v, "pair_noise", {}).get((*sorted(rows), metric_name))
         if paired is not None:
@@ -98,6 +102,11 @@ def noise_of(v: ValuesView, metric_name: str, rows: Sequence[str] = ()) -> float
     if own and all(x is not None for x in own):
         return float(max(own))
     return float(getattr(v, "noise", {}).get(metric_name, 0.0))
+
+
+def is_exact(metric_name: str) -> bool:
+    """Whether ``metric_name`` is a deterministic quantity, compared without noise."""
+    return metric(metric_name).deterministic
 
 
 def noise_name(v: ValuesView, metric_name: str, rows: Sequence[str]) -> str:
@@ -153,6 +162,7 @@ def better(
                 continue
             noise = noise_of(v, metric, (a, o))
             spread = f", {noise_name(v, metric, (a, o))} {noise:.3g}" if noise > 0 else ""
+            spread = ", exact: no noise" if is_exact(metric) else spread
             checked.append(f"{_at(v, col, metric)}: {_fmt(x)} vs {o} {_fmt(y)} (Δ {x - y:+.3g}{spread})")
             status, distance = _compare(x, y, metric, strict, margin, noise)
             statuses.append(status)

@@ -149,11 +149,16 @@ def stability_scenes(preset: BenchPreset) -> set[str]:
 def _scene_seeds(
     spec: Spec, scene: SceneRef, seeds: list[int], preset: BenchPreset, measured: set[str]
 ) -> list[int]:
-    """The seeds a table trains on ``scene``: ``preset.scene_seeds`` where no stability run measures the
-    scene's spread (``measured``: every real scene, a stand-in without one; their mean is printed, their
-    spread is the scene's noise), the spec's elsewhere and in figures and stability runs."""
-    repeat = scene.name not in measured and not spec.figure and spec.axis != "seeds"
-    return list(range(preset.scene_seeds)) if repeat and preset.scene_seeds > len(seeds) else seeds
+    """The seeds a table trains on ``scene``: ``preset.table_seeds`` of the table on any scene;
+    ``preset.scene_seeds`` where no stability run measures the scene's spread (``measured``: every real
+    scene, a stand-in without one; their mean is printed, their spread is the scene's noise); the spec's
+    elsewhere and always in figures and stability runs."""
+    if spec.figure or spec.axis == "seeds":
+        return seeds
+    wanted = preset.table_seeds.get(spec.id, 0)
+    if scene.name not in measured:
+        wanted = max(wanted, preset.scene_seeds)
+    return list(range(wanted)) if wanted > len(seeds) else seeds
 
 
 def _slots(

@@ -52,6 +52,11 @@ class BenchPreset:
             ``expert_preset``; ``"paper"`` is the authors' full schedule (5000 iterations, RAdam).
         real_only: only tables whose scenes are all real run at this preset; the stand-in tables stay
             at ``quick`` (a full run of this preset is the set of real-scene tables).
+        table_seeds: per table (spec id), the seeds it trains on every scene, those a stability run
+            measures included (``scene_seeds`` leaves them at the spec's one seed): asked for where the
+            table's claims compare rows whose difference a stability run's spreads cannot judge (paired
+            comparisons of routers, pruning, single pass), and where the extra builds are cheap because the
+            stability run already trained its experts at those seeds. Planning only, like ``scene_seeds``.
         own_outputs: a full run writes ``tables/<name>/`` and ``reports/<name>/`` (as a ``real_only``
             preset does), leaving the default layout's outputs alone. It places outputs, never changes a
             number, so it is not part of any cell key.
@@ -86,6 +91,7 @@ class BenchPreset:
     native_psnr: bool = False
     """Also score real scenes below native resolution upsampled to it (``psnr_native``)."""
     scene_seeds: int = 1
+    table_seeds: dict[str, int] = field(default_factory=dict)
     own_outputs: bool = False
 
     @property
@@ -121,7 +127,7 @@ class BenchPreset:
 
 LATER_FIELDS = ("schedule_iterations", "router_scale", "real_only", "native_psnr")
 """Fields added after results were cached; omitted from ``to_dict`` at their default."""
-PLANNING_FIELDS = ("scene_seeds", "own_outputs")
+PLANNING_FIELDS = ("scene_seeds", "table_seeds", "own_outputs")
 """Fields that choose which cells run or where outputs go, never what one computes; never in
 ``to_dict``."""
 
@@ -150,6 +156,12 @@ QUICK = BenchPreset(
     # quick), so the tables of every scene without a stability run (real scenes, the D-NeRF stand-in)
     # print a 3-seed mean judged against their own spread.
     scene_seeds=3,
+    # The N3V stand-in's paired tables (routers, pruning, single pass) train 3 seeds too, so their
+    # comparisons of the same experts are judged against the spread of the difference, not Table IX's
+    # row spreads: they reuse Table IX's experts, so the 10 extra router builds cost about 6 min of a
+    # cold run (9.2 cell-minutes). Distillation (Tables VIII, XV: 14.5 min) and Tables X and XVIII
+    # (12 min) are left to `--seeds 3` (docs/reproduce.md).
+    table_seeds={"tab03": 3, "tab05": 3, "tab06": 3, "tab07": 3, "tab12": 3},
     test_views=8,
     speed_views=2,
     speed_warmup=1,
@@ -187,6 +199,7 @@ STANDARD = replace(
     real_only=True,
     native_psnr=True,
     scene_seeds=1,  # one standard basketball build is about half an hour
+    table_seeds={},
 )
 """``quick`` with the real scenes trained longer (see the fields it replaces)."""
 
@@ -250,6 +263,15 @@ PRESETS: dict[str, BenchPreset] = by_name(
     ),
     "presets",
 )
+
+
+SHORTHANDS = ("tiny", "quick", "standard", "paper")
+"""Presets with a flag of their own in ``python -m bench.all`` (``--quick`` is ``--preset quick``)."""
+
+
+def preset_flag(name: str) -> str:
+    """The ``bench.all`` option that chooses preset ``name``: ``--quick``, ``--preset quick32``."""
+    return f"--{name}" if name in SHORTHANDS else f"--preset {name}"
 
 
 DEFAULT_PRESET = "quick"

@@ -204,8 +204,8 @@ def main(argv: list[str] | None = None) -> int:
         table = compare(experts, args.scene, args.preset, args.out, progress=not args.quiet)
         body = readme_section(table, published_numbers(args.scene))
         path = update_readme(args.readme, section, body)
-    except (ValueError, FileNotFoundError) as err:
-        print(f"bench.readme: {err}", file=sys.stderr)
+    except (ValueError, OSError) as err:  # OSError: a missing file, a run folder in use, a full disk
+        print(f"bench.readme: {' '.join(str(err).split())}", file=sys.stderr)
         return 2
     print(f"README section '{section}' -> {path}")
     return 0

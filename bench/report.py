@@ -17,9 +17,9 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bench.claims import AGAINST_PAPER, FAILED, HELD, NA, NOISE, NOT_JUDGED, ClaimResult, evaluate
+from bench.claims import AGAINST_PAPER, FAILED, HELD, NA, NOISE, NOT_JUDGED, ClaimResult, evaluate, is_exact
 from bench.keys import code_version, git_commit
-from bench.presets import BenchPreset
+from bench.presets import BenchPreset, preset_flag
 from bench.results import write_text_atomic
 from bench.runlog import FILE as RUNS_FILE
 from bench.runlog import describe, recent
@@ -44,6 +44,7 @@ class SpecReport:
     latex: str | None = None
     figures: list[str] = field(default_factory=list)
     invalid_results: list[str] = field(default_factory=list)
+    seeds: int = 1  # seeds each row trains (averaged) on its scenes, at most
 
 
 CONVENTIONS = (
@@ -157,7 +158,8 @@ def spec_report(
         if claim.kind == "paper" and claim.args.get("metric") in TIMINGS:
             ours = ClaimResult(NOT_JUDGED, UNPAIRED)
         else:
-            ours = evaluate(claim, values) if values.noise else ClaimResult(NOT_JUDGED, NO_BASIS)
+            judged = values.noise or is_exact(claim.args.get("metric", "PSNR"))
+            ours = evaluate(claim, values) if judged else ClaimResult(NOT_JUDGED, NO_BASIS)
         paper = evaluate(claim, values.paper) if values.paper_table is not None else None
         claims.append(
             {
@@ -199,6 +201,7 @@ def spec_report(
         latex=str(latex) if latex else None,
         figures=[str(f) for f in figures or []],
         invalid_results=list(values.results.errors),
+        seeds=max((len(s) for s in values.plan.averaged_seeds().values()), default=1),
     )
 
 
@@ -507,6 +510,61 @@ def values_markdown(values: list[dict[str, Any]]) -> list[str]:
     ]
 
 
+MAX_SUGGESTED_SEEDS = 10
+"""More seeds than this per row are not suggested: such a claim sits too close to its boundary."""
+
+
+def more_seeds(reports: list[SpecReport], preset: str) -> list[dict[str, Any]]:
+    """Per table with undecided paper claims: ``{"spec", "trained", "undecided", "decidable", "seeds",
+    "command"}``: the seeds its rows trained, and the seeds per row that would decide its ``decidable``
+    claims (each estimated by ``seeds_to_decide``, more than it trained and at most
+    ``MAX_SUGGESTED_SEEDS``) with the command that trains them (``--seeds``)."""
+    out = []
+    for rep in reports:
+        undecided = [c for c in rep.claims if c.get("kind", "paper") == "paper" and c["ours"] == NOISE]
+        needs = [c.get("ours_seeds_to_decide") for c in undecided]
+        decidable = [n for n in needs if n is not None and rep.seeds < n <= MAX_SUGGESTED_SEEDS]
+        if not undecided or rep.kind == "figure":  # a figure draws one seed whatever --seeds asks
+            continue
+        seeds = max(decidable, default=None)
+        command = f"python -m bench.all {preset_flag(preset)} --tables {rep.id} --seeds {seeds}"
+        out.append(
+            {
+                "spec": rep.id,
+                "trained": rep.seeds,
+                "undecided": len(undecided),
+                "decidable": len(decidable),
+                "seeds": seeds,
+                "command": command if seeds else None,
+            }
+        )
+    return out
+
+
+def more_seeds_markdown(rows: list[dict[str, Any]]) -> list[str]:
+    """The report's "More seeds" section: which tables' undecided paper claims more seeds would decide."""
+    if not rows:
+        return []
+    lines = [
+        "## More seeds",
+        "",
+        "Undecided paper claims per table, and the seeds per row that would decide those that more seeds "
+        f"than the table trained, and at most {MAX_SUGGESTED_SEEDS}, would decide (a spread shrinking as "
+        "1/sqrt(seeds)); the others sit too close to their boundary, or stay undecided because each is "
+        "judged against the spread of single seeds. Seeds a stability run trained are reused.",
+        "",
+        "| table | seeds trained | undecided | decided by more seeds | seeds per row | command |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        command = f"`{r['command']}`" if r["command"] else "–"
+        lines.append(
+            f"| {r['spec']} | {r['trained']} | {r['undecided']} | {r['decidable']} | {r['seeds'] or '–'} "
+            f"| {command} |"
+        )
+    return [*lines, ""]
+
+
 def render_markdown(
     reports: list[SpecReport], header: dict[str, Any], base: Path, signals: dict[str, Any] | None = None
 ) -> str:
@@ -560,6 +618,7 @@ def render_markdown(
         d = rep.deltas[0] if rep.deltas else None
         delta = f"{d['row']} / {d['column']} {d['metric']}: {d['delta']:+.3f}" if d else "–"
         lines.append(f"| {rep.id} | {rep.title} | {rep.status} | {_claim_counts(rep)} | {delta} |")
+    lines += ["", *more_seeds_markdown(more_seeds(reports, h["preset"]))]
     for rep in reports:
         lines += ["", f"## {rep.id}: {rep.title}", "", f"**Status:** {rep.status}", ""]
         if rep.scenes:
@@ -684,6 +743,7 @@ def write_report(
         "experts": signals.get("experts", []),
         "routing": signals.get("routing", []),
         "compute": signals.get("compute", {}),
+        "more_seeds": more_seeds(reports, preset.name),
         "specs": [_relative(asdict(r), out_dir) for r in reports],
     }
     write_text_atomic(paths["json"], json.dumps(summary, indent=1, default=str) + "\n")

@@ -135,8 +135,14 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
                             "metrics": {name: dB, the largest over its rows}}},
          "metrics": {name: dB}, "source": [spec ids]}
 
-    ``metrics`` (with its ``source``) is the largest spread measured on a stand-in: the noise of a scene
-    without repeated trainings of its own (``noise_for``). Empty when nothing has two finished seeds."""
+    A scene's ``metrics`` is the largest spread of the rows of its stability run (a spec on the ``seeds``
+    axis: Table IX) where it has one, else of every row: a table that trains more seeds of a stability
+    scene (``BenchPreset.table_seeds``) judges its rows against their own and paired spreads, and an
+    unstable row of it (a pruning that fails at one seed) does not become every other table's noise.
+    ``metrics`` (with its ``source``) at the top is the largest spread measured on a stand-in: the noise of
+    a scene without repeated trainings of its own (``noise_for``). Empty when nothing has two finished
+    seeds."""
+    stability = {sp.spec.id for sp in plan.specs if sp.spec.axis == "seeds"}
     per_seed: dict[tuple[str, str, str, str | None], dict[int, tuple[str, dict[str, Any]]]] = {}
     real: dict[str, bool] = {}
     scenes: dict[str, dict[str, Any]] = {}
@@ -165,14 +171,17 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
         if spec_id not in entry["source"]:
             entry["source"].append(spec_id)
         spreads = entry["rows"].setdefault(row, {})
+        widest = entry.setdefault("_stability" if spec_id in stability else "_other", {})
         for name, m in METRICS.items():
             values = [r.get(m.key) for r in results]
             if any(v is None for v in values):
                 continue
             spread = max(values) - min(values)
             spreads[name] = max(spreads.get(name, 0.0), spread)
-            entry["metrics"][name] = max(entry["metrics"].get(name, 0.0), spread)
+            widest[name] = max(widest.get(name, 0.0), spread)
     for scene, entry in scenes.items():
+        stable, other = entry.pop("_stability", None), entry.pop("_other", {})
+        entry["metrics"] = stable if stable is not None else other
         entry["cells"] = digest(sorted(cells[scene]))
         entry["pairs"] = _paired_spreads(per_seed, scene)
     return {"preset": plan.preset.name, "scenes": scenes, **_stand_in_spread(scenes)}

@@ -58,13 +58,16 @@ def by_name(items: Iterable[T], what: str) -> dict[str, T]:
 
 @dataclass(frozen=True)
 class Metric:
-    """A reported quantity: printed name, key in a result's ``metrics``, direction, decimals."""
+    """A reported quantity: printed name, key in a result's ``metrics``, direction, decimals; and
+    ``deterministic`` for a quantity the trained model fixes exactly (its size in memory), which claims
+    compare without a seed spread (``bench.claims.noise_of``)."""
 
     name: str
     key: str
     higher_is_better: bool
     digits: int
     unit: str = ""
+    deterministic: bool = False
 
 
 METRICS: dict[str, Metric] = by_name(
@@ -73,7 +76,7 @@ METRICS: dict[str, Metric] = by_name(
         Metric("SSIM", "ssim", True, 3),
         Metric("LPIPS", "lpips", False, 3),
         Metric("FPS", "fps", True, 1),
-        Metric("Memory", "memory_mb", False, 1, "MB"),
+        Metric("Memory", "memory_mb", False, 1, "MB", deterministic=True),
         Metric("Time", "train_time_h", False, 3, "h"),
         # region metrics (static / dynamic masks) for the ROI and MoDE trade-off figures
         Metric("PSNR static", "psnr_static", True, 2, "dB"),

@@ -350,9 +350,11 @@ def test_tables_of_scenes_without_a_stability_run_average_several_seeds_and_judg
     # a stand-in that no stability run trains (the D-NeRF-like one of HyperNeRF's Table XIV) gets its own
     # seeds; the N3V stand-in's tables train once, Table IX measures its spread
     assert bench.plan.stability_scenes(quick) == {"synthetic:n3v_like"}
-    tab14, tab03 = bench.plan.make_plan(["tab14", "tab03"], quick).specs
+    tab14, tab04, tab03 = bench.plan.make_plan(["tab14", "tab04", "tab03"], quick).specs
     assert tab14.averaged_seeds() == {"synthetic:dnerf_like": [0, 1, 2]}
-    assert {s.seed for s in tab03.slots} == {0} and tab03.averaged_seeds() == {}
+    assert {s.seed for s in tab04.slots} == {0} and tab04.averaged_seeds() == {}
+    # unless the preset asks a table for more (quick: the N3V stand-in's paired tables)
+    assert quick.table_seeds["tab03"] == 3 and tab03.averaged_seeds() == {"synthetic:n3v_like": [0, 1, 2]}
     standard = bench.plan.make_plan(["tab16"], get_preset("standard")).specs[0]
     assert {s.seed for s in standard.slots} == {0}
     # the number of seeds chooses cells; it is not part of any cell's key
@@ -474,7 +476,7 @@ def test_a_table_trained_once_measures_no_spread(tmp_path):
     from bench.signals import seed_noise
     from bench.store import Workspace
 
-    plan = bench.plan.make_plan(["tab03"], get_preset("quick"))
+    plan = bench.plan.make_plan(["tab04"], get_preset("quick"))
     assert {s.seed for s in plan.specs[0].slots} == {0}
     ws = Workspace(tmp_path)
     computed = [slot for slot in plan.specs[0].slots if slot.task is not None]  # not the external rows
@@ -652,6 +654,29 @@ def test_two_rows_trained_with_the_same_seeds_are_judged_against_their_paired_sp
     assert better(view, "A", "B").status == HELD and "paired spread 0.1" in better(view, "A", "B").detail
     assert better(view, "B", "A").status == FAILED  # the pair is unordered
     assert better(view, "A", "C").status == NOISE and "seed spread 0.6" in better(view, "A", "C").detail
+
+
+def test_a_deterministic_quantity_is_compared_without_noise(tmp_path):
+    """Memory is the trained model's size: a difference of 0.2 MB decides a claim whatever spread the
+    scene or the rows measured, the detail says so, and a run with no spread at all still judges it."""
+    from bench.plan import make_plan
+    from bench.presets import get_preset
+    from bench.report import spec_report
+    from bench.store import Workspace
+    from bench.values import SpecValues
+
+    view = View({("A", "@mean", "Memory"): 34.6, ("B", "@mean", "Memory"): 34.8}, {"Memory": 0.33})
+    view.row_noise = {("A", "Memory"): 0.5, ("B", "Memory"): 0.5}
+    view.pair_noise = {("A", "B", "Memory"): 0.4}
+    result = better(view, "A", "B", metric="Memory")
+    assert result.status == HELD and "exact: no noise" in result.detail
+    assert better(view, "B", "A", metric="Memory").status == FAILED
+    assert within(view, "A", "B", tolerance=0.1, metric="Memory").status == FAILED
+    plan = make_plan([get_spec("tab07")], get_preset("tiny"))
+    report = spec_report(SpecValues(plan.specs[0], Workspace(tmp_path)), get_preset("tiny"))
+    claims = {c["id"]: c for c in report.claims}
+    assert claims["pruning-memory"]["ours"] != NOT_JUDGED  # no spread measured: memory is still judged
+    assert claims["pruning-keeps-psnr"]["ours"] == NOT_JUDGED
 
 
 def test_paired_spreads_come_from_the_seeds_both_rows_trained():

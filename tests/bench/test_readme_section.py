@@ -116,6 +116,24 @@ def test_readme_without_markers_fails(runs, tmp_path, capsys):
     assert "<!-- results:mutant -->" in capsys.readouterr().err
 
 
+def test_a_run_folder_in_use_is_one_line(runs, tmp_path, capsys, monkeypatch):
+    """The runs folder locked by another moegs command (``moegs.guards``): one line, no traceback."""
+    import moegs.compare
+    from moegs.guards import FolderInUse
+
+    readme = tmp_path / "README.md"
+    readme.write_text("<!-- results:mutant -->\n<!-- /results:mutant -->\n")
+    message = f"{runs} is in use by another moegs command (it holds the folder's lock)"
+
+    def busy(*args, **kwargs):
+        raise FolderInUse(message)
+
+    monkeypatch.setattr(moegs.compare, "compare", busy)
+    argv = [str(readme), "--experts", "static", "--scene", "dnerf:mutant", "--out", str(runs), "--quiet"]
+    assert main(argv) == 2
+    assert capsys.readouterr().err == f"bench.readme: {message}\n"
+
+
 def test_section_without_published_numbers():
     table = {"scene": "synthetic:x", "preset": "quick", "rows": []}
     assert published_numbers("synthetic:x") == []
