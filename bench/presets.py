@@ -156,12 +156,12 @@ QUICK = BenchPreset(
     # quick), so the tables of every scene without a stability run (real scenes, the D-NeRF stand-in)
     # print a 3-seed mean judged against their own spread.
     scene_seeds=3,
-    # The N3V stand-in's paired tables (routers, pruning, single pass) train 3 seeds too, so their
-    # comparisons of the same experts are judged against the spread of the difference, not Table IX's
-    # row spreads: they reuse Table IX's experts, so the 10 extra router builds cost about 6 min of a
-    # cold run (9.2 cell-minutes). Distillation (Tables VIII, XV: 14.5 min) and Tables X and XVIII
+    # The N3V stand-in's paired tables (routers, pruning, single pass, distillation) train 3 seeds too, so
+    # their comparisons of the same experts are judged against the spread of the difference, not Table
+    # IX's row spreads. Measured cold: the routers' tables reuse Table IX's experts (10 router builds,
+    # about 6 min), distillation's train students and teachers (20 builds, 14.5 min); Tables X and XVIII
     # (12 min) are left to `--seeds 3` (docs/reproduce.md).
-    table_seeds={"tab03": 3, "tab05": 3, "tab06": 3, "tab07": 3, "tab12": 3},
+    table_seeds={"tab03": 3, "tab05": 3, "tab06": 3, "tab07": 3, "tab08": 3, "tab12": 3, "tab15": 3},
     test_views=8,
     speed_views=2,
     speed_warmup=1,
