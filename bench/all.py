@@ -17,10 +17,10 @@ and writes ``tables/standard/`` and ``reports/standard/``, including paper | sta
 Datasets without real data under ``MOEGS_DATA`` run on synthetic stand-ins; the run says so in one line
 at the start, and ``--require-real`` makes it an error instead.
 
-``--tables`` accepts ``tab03``, ``3``, ``III``, ``repro-tab3`` (tox env names) and figure ids;
-``python -m bench.tab03`` is the same as ``--tables tab03``. The preset is ``--preset NAME`` or one of
-its shorthands ``--tiny``, ``--quick``, ``--standard``, ``--paper`` (two that name different presets are
-an error), else ``$MOEGS_PRESET``, else ``quick``.
+``--tables`` accepts ``tab03``, ``3``, ``III``, ``repro-tab3`` (tox env names) and figure ids; it is
+the one entry point of every table (``tox -e repro-tab3`` calls it; spec modules are data). The preset
+is ``--preset NAME`` or one of its shorthands ``--tiny``, ``--quick``, ``--standard``, ``--paper`` (two
+that name different presets are an error), else ``$MOEGS_PRESET``, else ``quick``.
 
 Before any work the run prints its plan (builds and evaluations to compute, and those cached) and an
 estimate of its time from the task times the workspace recorded (``bench.forecast``: the same tasks under
@@ -516,13 +516,14 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def with_candidates(specs: list, selected: list[str], names: list[str]) -> list | None:
-    """``specs`` with Table X extended by the candidate experts ``names`` (None, after saying why, when
-    Table X is not selected or a name is not a registered expert)."""
-    from bench.tab10 import with_candidates as table_x
+    """``specs`` with every selected spec that takes candidate experts (``Spec.candidates``: Table X)
+    extended by ``names`` (None, after saying why, when no selected spec takes them or a name is not a
+    registered expert)."""
     from moegs.experts import get_spec as expert_spec
 
-    if "tab10" not in selected:
-        print("error: --candidate extends Table X: add --tables 10", file=sys.stderr)
+    takers = [s.id for s in specs if s.candidates is not None]
+    if not set(takers) & set(selected):
+        print(f"error: --candidate extends {', '.join(takers)}: select it with --tables", file=sys.stderr)
         return None
     try:
         names = [register_candidate(n) if ":" in n else n for n in names]
@@ -531,7 +532,7 @@ def with_candidates(specs: list, selected: list[str], names: list[str]) -> list 
     except (ImportError, ValueError) as err:
         print(f"error: --candidate: {err}", file=sys.stderr)
         return None
-    return [table_x(names) if s.id == "tab10" else s for s in specs]
+    return [s.candidates(s, tuple(names)) if s.id in selected and s.candidates else s for s in specs]
 
 
 def register_candidate(target: str) -> str:
@@ -600,11 +601,6 @@ def _print_summary(reports, selected, paths, elapsed: float, what: str = "") -> 
     console = Console(stderr=True)
     console.print(table)
     console.print(f"report: {paths['md']}  (html: {paths['html']})")
-
-
-def main_for(spec_id: str) -> None:
-    """Entry point of ``python -m bench.tabNN [options]``."""
-    sys.exit(main(["--tables", spec_id, *sys.argv[1:]]))
 
 
 if __name__ == "__main__":

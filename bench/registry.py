@@ -1,19 +1,29 @@
 """All table and figure specs by id, importable without torch.
 
-Ids: ``tab01`` .. ``tab19`` (one module each, ``bench/tabNN.py``) and the figure ids of
-``bench.figures``. :func:`normalize_id` accepts ``tab03``, ``tab3``, ``3``, ``03``, ``III``,
-``repro-tab3`` (tox env names) and ``fig_mdc``; an unknown id raises ``KeyError`` listing the valid ones.
+Ids: every ``bench/tabNN.py`` module that defines a ``SPEC`` (found, not listed: a new table is a new
+module) and the figure ids of ``bench.figures``. :func:`normalize_id` accepts ``tab03``, ``tab3``, ``3``,
+``03``, ``III``, ``repro-tab3`` (tox env names) and ``fig_mdc``; an unknown id raises ``KeyError``
+listing the valid ones.
 """
 
 from __future__ import annotations
 
 import importlib
+import pkgutil
 import re
 from functools import cache
+from pathlib import Path
 
 from bench.spec import Spec
 
-TABLE_IDS: tuple[str, ...] = tuple(f"tab{i:02d}" for i in range(1, 20))
+
+def _table_modules() -> tuple[str, ...]:
+    """Names of the ``bench/tabNN.py`` modules, in number order."""
+    names = [m.name for m in pkgutil.iter_modules([str(Path(__file__).parent)])]
+    return tuple(sorted(n for n in names if re.fullmatch(r"tab\d\d", n)))
+
+
+TABLE_IDS: tuple[str, ...] = _table_modules()
 _ROMAN = "I II III IV V VI VII VIII IX X XI XII XIII XIV XV XVI XVII XVIII XIX".split()
 
 
@@ -48,7 +58,7 @@ def normalize_id(text: str) -> str:
     if key in _figures():
         return key
     m = re.fullmatch(r"(?:tab(?:le)?[-_ ]?)?0*(\d{1,2})", key)
-    if m and 1 <= int(m.group(1)) <= len(TABLE_IDS):
+    if m and f"tab{int(m.group(1)):02d}" in TABLE_IDS:
         return f"tab{int(m.group(1)):02d}"
     roman = re.sub(r"^(?:tab(?:le)?[-_ ]?)", "", raw.strip(), flags=re.I).upper()
     if roman in _ROMAN:

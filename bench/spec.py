@@ -14,7 +14,7 @@ Axes:
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, TypeVar
@@ -205,6 +205,8 @@ class Spec:
         notes: assumptions made by the spec (what the paper leaves unsaid).
         motion: the paper's claims here are about motion: each PSNR claim is also checked on the
             dynamic region ("PSNR dynamic").
+        candidates: the spec's extension by candidate experts (``bench.all --candidate NAME``):
+            ``candidates(spec, names) -> Spec`` with their rows and claims added; None when it takes none.
     """
 
     id: str
@@ -224,6 +226,7 @@ class Spec:
     scenes: tuple[str, ...] = ()
     notes: str = ""
     motion: bool = False
+    candidates: Callable[[Spec, tuple[str, ...]], Spec] | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         if self.axis not in AXES:

@@ -36,8 +36,3 @@ SPEC = Spec(
     ),
     notes="Categorical table; values are the paper's symbols, not computed.",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

@@ -53,8 +53,3 @@ SPEC = Spec(
     motion=True,
     notes="The stored MoDE code has only 4DGaussians-based combinations; the others follow the paper.",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

@@ -43,8 +43,3 @@ SPEC = Spec(
     "are one segment. N=2: {Ex4DGS, STG}, "
     "N=3: + E-D3DGS, N=4: + 4DGaussians.",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

@@ -20,8 +20,3 @@ SPEC = Spec(
         ),
     ),
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

@@ -66,8 +66,3 @@ SPEC = Spec(
     notes="Memory is the size of the rendered model's parameters in MB (the paper does not print the "
     "unit). FPS follows moegs.metrics.speed (median over views, warm-up, device named).",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

@@ -46,8 +46,3 @@ SPEC = Spec(
     "training); the extra row 'paper wording' follows the paper's text instead (3x3 Phi, w_dir 0, "
     "temperature 1) and is not in the paper.",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

@@ -79,8 +79,3 @@ SPEC = Spec(
     notes="Dataset not printed (N3V inferred). 'Pruning' is gate-aware pruning with the library's default "
     "threshold schedule; the ratio is not printed.",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

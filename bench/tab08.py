@@ -25,8 +25,3 @@ SPEC = Spec(
     notes="Teacher: MoE-GS N=3 {Ex4DGS, STG, E-D3DGS} with the volume-aware pixel router; students use the "
     "routing-weighted KD loss ('Distilled (Ours)' of Table XV).",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

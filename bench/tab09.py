@@ -39,8 +39,3 @@ SPEC = Spec(
     "over the dataset's scenes. The rows list 4DGaussians although the caption's N=3 set is "
     "{Ex4DGS, STG, E-D3DGS}; MoE-GS run s uses experts trained with seed s.",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

@@ -1,7 +1,8 @@
 """Table X (expert_pool_ablation): which third expert to add to {Ex4DGS, STG}.
 
 ``python -m bench.all --tables 10 --candidate NAME`` adds any registered expert (a plugin's entry-point
-name, README "Add your own expert") as one more third-expert row, marked as not in the paper.
+name, README "Add your own expert") as one more third-expert row, marked as not in the paper: the spec
+declares that extension itself (``Spec.candidates``).
 """
 
 import dataclasses
@@ -11,6 +12,24 @@ from bench.spec import Claim, Spec, moe
 _N2 = "MoE-GS (N=2)"
 _THIRD = {"+ E-D3DGS": "ed3dgs", "+ Grid4D": "grid4d", "+ DeformableGS": "deformable", "+ 3DGS-MCMC": "mcmc"}
 _COL = ["PSNR (dB)"]
+
+
+def with_candidates(spec: Spec, names: tuple[str, ...]) -> Spec:
+    """Table X with one more row per candidate expert, ``+ <name>`` over {Ex4DGS, STG}, and the claim that
+    it improves over N=2 (ours only: the paper has no such row)."""
+    rows = tuple(moe(f"+ {n}", ("ex4dgs", "stg", n), variant=True) for n in names)
+    claims = tuple(
+        Claim(
+            f"n3-beats-n2-candidate-{n}",
+            f"N=3 with candidate '{n}' improves over N=2",
+            "better",
+            {"a": f"+ {n}", "b": _N2, "columns": _COL},
+            "candidate expert (not in the paper)",
+        )
+        for n in names
+    )
+    return dataclasses.replace(spec, rows=spec.rows + rows, claims=spec.claims + claims)
+
 
 SPEC = Spec(
     id="tab10",
@@ -48,27 +67,5 @@ SPEC = Spec(
     ),
     motion=True,
     notes="3DGS-MCMC is a static expert (one model per frame in the library's 'mcmc' expert).",
+    candidates=with_candidates,
 )
-
-
-def with_candidates(names: list[str]) -> Spec:
-    """Table X with one more row per candidate expert, ``+ <name>`` over {Ex4DGS, STG}, and the claim that
-    it improves over N=2 (ours only: the paper has no such row)."""
-    rows = tuple(moe(f"+ {n}", ("ex4dgs", "stg", n), variant=True) for n in names)
-    claims = tuple(
-        Claim(
-            f"n3-beats-n2-candidate-{n}",
-            f"N=3 with candidate '{n}' improves over N=2",
-            "better",
-            {"a": f"+ {n}", "b": _N2, "columns": _COL},
-            "candidate expert (not in the paper)",
-        )
-        for n in names
-    )
-    return dataclasses.replace(SPEC, rows=SPEC.rows + rows, claims=SPEC.claims + claims)
-
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

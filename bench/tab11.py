@@ -59,8 +59,3 @@ SPEC = Spec(
     notes="Train time in hours of wall clock on the machine of the run (the paper's are GPU hours); MoE-GS "
     "counts its experts' training plus router training.",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

@@ -29,8 +29,3 @@ SPEC = Spec(
     notes="The text says MoE-GS outperforms the experts 'across all scenes and metrics'; the claims allow "
     "ties, since the paper's own LPIPS ties STG† on Flame Steak and Sear Steak (0.026).",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

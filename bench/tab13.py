@@ -29,8 +29,3 @@ SPEC = Spec(
     ),
     notes="The N=3 set is {Ex4DGS, STG, E-D3DGS}; the table has no E-D3DGS row.",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

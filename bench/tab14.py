@@ -12,8 +12,3 @@ SPEC = moe_pair_spec(
     "listed baselines) is assumed. Its default N=2 set is {Ex4DGS, STG} ('unless otherwise specified', "
     "Sec. IV-C), which this table's rows do not list.",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

@@ -31,8 +31,3 @@ SPEC = Spec(
         for e in _EXPERTS
     ),
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

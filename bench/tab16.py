@@ -15,8 +15,3 @@ SPEC = moe_pair_spec(
     "the report's PSNR per held-out camera shows when one camera's failure moves the mean. The test "
     "cameras have no seg/ masks, so there is no dynamic-region score.",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

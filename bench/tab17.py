@@ -19,8 +19,3 @@ SPEC = moe_pair_spec(
     ),
     notes="The metric is not printed; PSNR assumed. Mutant is the staged real scene.",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

@@ -34,8 +34,3 @@ SPEC = Spec(
     "budget b uses experts trained with budget b and a full router schedule. Metric and dataset "
     "inferred (PSNR, N3V).",
 )
-
-if __name__ == "__main__":
-    from bench.all import main_for
-
-    main_for(SPEC.id)

@@ -46,6 +46,29 @@ def test_unknown_tables_and_candidates_list_the_valid_names(tmp_path, capsys):
     assert "unknown table/figure id '42'; valid ids: tab01, tab02" in capsys.readouterr().err
     assert main(["--quick", "--tables", "10", "--candidate", "nope", "--no-run", *out]) == 2
     assert "--candidate: unknown expert 'nope'; registered experts: deformable" in capsys.readouterr().err
+    assert main(["--quick", "--tables", "3", "--candidate", "static", "--no-run", *out]) == 2
+    assert "error: --candidate extends tab10: select it with --tables" in capsys.readouterr().err
+
+
+def test_spec_modules_are_data_and_table_x_declares_its_extension():
+    """No spec imports the driver or runs as a script; Table X extends itself with candidate rows."""
+    import ast
+    from pathlib import Path
+
+    from bench.registry import get_spec, list_specs
+
+    for spec_id in list_specs("tables"):
+        source = (Path(__file__).parents[2] / "bench" / f"{spec_id}.py").read_text()
+        imported = {n.module or "" for n in ast.walk(ast.parse(source)) if isinstance(n, ast.ImportFrom)} | {
+            a.name for n in ast.walk(ast.parse(source)) if isinstance(n, ast.Import) for a in n.names
+        }
+        assert not {m for m in imported if m.startswith("bench.") and m != "bench.spec"}, spec_id
+        assert "__main__" not in source, spec_id
+    tab10 = get_spec("10")
+    assert [s for s in list_specs() if get_spec(s).candidates is not None] == ["tab10"]
+    extended = tab10.candidates(tab10, ("linear",))
+    assert extended.rows[-1].name == "+ linear" and extended.claims[-1].id == "n3-beats-n2-candidate-linear"
+    assert extended.candidates is tab10.candidates and len(extended.rows) == len(tab10.rows) + 1
 
 
 @pytest.mark.parametrize(

@@ -246,14 +246,16 @@ def test_submitit_local_executor(run, tmp_path, pack):
         assert result["status"] == "ok" and result["device"] == {"kind": "cpu", "name": "cpu", "gpu": None}
 
 
-def test_cli_table_module(run):
-    """``python -m bench.tab17 --no-run`` rebuilds the table from the existing results."""
+def test_cli_one_table(run):
+    """``python -m bench.all --tables 17 --no-run`` rebuilds the table from the existing results."""
     out = run["out"] / "cli"
     proc = subprocess.run(
         [
             sys.executable,
             "-m",
-            "bench.tab17",
+            "bench.all",
+            "--tables",
+            "17",
             "--preset",
             "tiny",
             "--no-run",
