@@ -22,7 +22,7 @@ from bench.keys import code_version, git_commit
 from bench.presets import BenchPreset, preset_flag
 from bench.results import write_text_atomic
 from bench.runlog import FILE as RUNS_FILE
-from bench.runlog import describe, recent
+from bench.runlog import by_kind, describe, recent
 from bench.signals import NOISE_PROXY
 from bench.values import SpecValues
 
@@ -565,6 +565,11 @@ def more_seeds_markdown(rows: list[dict[str, Any]]) -> list[str]:
     return [*lines, ""]
 
 
+def _kinds(kind_seconds: dict[str, float]) -> str:
+    """``build expert 40.1 min, build moe 12.0 min, ...``, the largest first."""
+    return ", ".join(f"{k} {m:.1f} min" for k, m in by_kind(kind_seconds).items())
+
+
 def render_markdown(
     reports: list[SpecReport], header: dict[str, Any], base: Path, signals: dict[str, Any] | None = None
 ) -> str:
@@ -601,7 +606,8 @@ def render_markdown(
         lines += [
             f"- this run: {r.get('builds_run', 0)} builds + {r.get('evals_run', 0)} evaluations run, "
             f"{r.get('builds_reused', 0)} builds + {r.get('evals_reused', 0)} evaluations reused, "
-            f"{len(r.get('failures', []))} failed, {r.get('seconds', 0):.0f} s",
+            f"{len(r.get('failures', []))} failed, {r.get('seconds', 0):.0f} s"
+            + (f"; cell time by kind: {_kinds(r['kind_seconds'])}" if r.get("kind_seconds") else ""),
             "",
         ]
     lines += signals_markdown(signals or {})

@@ -96,9 +96,15 @@ def record_run(
         "failures": len(run["failures"]),  # failed cells are among those run
         "cells_seconds": round(run["seconds"], 1),
         "seconds": round(seconds, 1),
+        "minutes_by_kind": by_kind(run.get("kind_seconds") or {}),
     }
     write_json_atomic(runs_path(workspace_root), {"runs": [*read_runs(workspace_root), entry]})
     return entry
+
+
+def by_kind(kind_seconds: dict[str, float]) -> dict[str, float]:
+    """``{"build expert": minutes, ...}``, the largest first (``RunSummary.kind_seconds``)."""
+    return {k: round(v / 60, 2) for k, v in sorted(kind_seconds.items(), key=lambda kv: -kv[1])}
 
 
 def runs_of(workspace_root: Path, keys_digest: str) -> list[dict[str, Any]]:

@@ -40,6 +40,9 @@ class RunSummary:
     """eval/build key -> why it was not started."""
     invalid_results: list[str] = field(default_factory=list)
     seconds: float = 0.0
+    kind_seconds: dict[str, float] = field(default_factory=dict)
+    """Seconds of the cells that ran, by ``"<action> <kind>"`` (``build expert``, ``eval moe``): where a
+    run's time went."""
 
     @property
     def ok(self) -> bool:
@@ -170,6 +173,8 @@ def execute(
         bar.set_postfix_str(
             f"{'ok' if outcome.ok else 'FAILED'} {outcome.task.slug} ({outcome.seconds:.0f}s)"
         )
+        what = f"{outcome.task.action} {outcome.task.kind}"
+        summary.kind_seconds[what] = summary.kind_seconds.get(what, 0.0) + outcome.seconds
         if outcome.task.action == "build":
             summary.builds_run += 1
         else:

@@ -92,6 +92,9 @@ def test_cells_computed_from_the_real_scene(run):
     summary = run["summary"]
     assert not summary.failures, [f"{o.task.slug}: {o.error} ({o.log})" for o in summary.failures]
     assert summary.builds_run >= 2 and summary.evals_run >= 1
+    # where the time went: every cell that ran, by action and kind
+    assert "build expert" in summary.kind_seconds and all(v > 0 for v in summary.kind_seconds.values())
+    assert {k.split()[0] for k in summary.kind_seconds} == {"build", "eval"}
     slots = _ok_slots(run)
     assert slots and all(s.scene.name == "dnerf:mutant" and s.scene.real for s in slots)
     for slot in slots:

@@ -145,13 +145,26 @@ def test_a_damaged_record_stops_bench_all_before_any_cell(tmp_path, monkeypatch,
 def test_reports_list_the_runs_of_their_plan(tmp_path, monkeypatch):
     """``bench.all`` records its run before writing its outputs; its report and every later ``--no-run``
     render list it."""
+    kinds = {"eval expert": 6.0, "build expert": 120.0, "build moe": 30.0}
     monkeypatch.setattr(
-        bench.runner, "execute", lambda *a, **k: RunSummary(builds_run=4, evals_run=3, seconds=30)
+        bench.runner,
+        "execute",
+        lambda *a, **k: RunSummary(builds_run=4, evals_run=3, seconds=30, kind_seconds=dict(kinds)),
     )
     report = tmp_path / "out" / "reports" / "subsets" / "tiny-tab17" / "reports"
     assert main(_tab17(tmp_path)) == 0
     [entry] = read_runs(tmp_path / "ws")
     assert (entry["builds_run"], entry["evals_run"], entry["cells_seconds"]) == (4, 3, 30.0)
+    # where the time went, by cell kind, largest first, in the record and in this run's report
+    assert list(entry["minutes_by_kind"].items()) == [
+        ("build expert", 2.0),
+        ("build moe", 0.5),
+        ("eval expert", 0.1),
+    ]
+    assert (
+        "cell time by kind: build expert 2.0 min, build moe 0.5 min, eval expert 0.1 min"
+        in (report / "REPORT.md").read_text()
+    )
     assert json.loads((report / "summary.json").read_text())["header"]["history"] == [entry]
 
     assert main(_tab17(tmp_path, "--no-run")) == 0
