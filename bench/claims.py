@@ -87,12 +87,17 @@ def _at(v: ValuesView, column: str, metric_name: str) -> str:
     return column if metric_name in v.metrics_of(column) else f"{column} [{metric_name}]"
 
 
+def is_exact(metric_name: str) -> bool:
+    """Whether ``metric_name`` is a deterministic quantity, compared without noise."""
+    return metric(metric_name).deterministic
+
+
 def noise_of(v: ValuesView, metric_name: str, rows: Sequence[str] = ()) -> float:
     """The seed-to-seed spread a comparison of ``rows`` on ``metric_name`` is judged against: for two
     rows trained with the same seeds, the spread of their per-seed difference (``pair_noise``); else the
     largest of the rows' own spreads when each has one (``row_noise``); else the view's scene-wide spread
     (0 when it has none). A deterministic metric has none."""
-    if metric(metric_name).deterministic:
+    if is_exact(metric_name):
         return 0.0
     if len(rows) == 2:
         paired = getattr(v, "pair_noise", {}).get((*sorted(rows), metric_name))
@@ -102,11 +107,6 @@ def noise_of(v: ValuesView, metric_name: str, rows: Sequence[str] = ()) -> float
     if own and all(x is not None for x in own):
         return float(max(own))
     return float(getattr(v, "noise", {}).get(metric_name, 0.0))
-
-
-def is_exact(metric_name: str) -> bool:
-    """Whether ``metric_name`` is a deterministic quantity, compared without noise."""
-    return metric(metric_name).deterministic
 
 
 def noise_name(v: ValuesView, metric_name: str, rows: Sequence[str]) -> str:

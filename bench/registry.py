@@ -1,6 +1,6 @@
 """All table and figure specs by id, importable without torch.
 
-Ids: every ``bench/tabNN.py`` module that defines a ``SPEC`` (found, not listed: a new table is a new
+Ids: every ``bench/tabNN.py`` module, each defining ``SPEC`` (found, not listed: a new table is a new
 module) and the figure ids of ``bench.figures``. :func:`normalize_id` accepts ``tab03``, ``tab3``, ``3``,
 ``03``, ``III``, ``repro-tab3`` (tox env names) and ``fig_mdc``; an unknown id raises ``KeyError``
 listing the valid ones.

@@ -143,6 +143,7 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
     a scene without repeated trainings of its own (``noise_for``). Empty when nothing has two finished
     seeds."""
     stability = {sp.spec.id for sp in plan.specs if sp.spec.axis == "seeds"}
+    widest: dict[tuple[str, bool], dict[str, float]] = {}  # (scene, from its stability run) -> spreads
     per_seed: dict[tuple[str, str, str, str | None], dict[int, tuple[str, dict[str, Any]]]] = {}
     real: dict[str, bool] = {}
     scenes: dict[str, dict[str, Any]] = {}
@@ -171,17 +172,17 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
         if spec_id not in entry["source"]:
             entry["source"].append(spec_id)
         spreads = entry["rows"].setdefault(row, {})
-        widest = entry.setdefault("_stability" if spec_id in stability else "_other", {})
+        largest = widest.setdefault((scene, spec_id in stability), {})
         for name, m in METRICS.items():
             values = [r.get(m.key) for r in results]
             if any(v is None for v in values):
                 continue
             spread = max(values) - min(values)
             spreads[name] = max(spreads.get(name, 0.0), spread)
-            widest[name] = max(widest.get(name, 0.0), spread)
+            largest[name] = max(largest.get(name, 0.0), spread)
     for scene, entry in scenes.items():
-        stable, other = entry.pop("_stability", None), entry.pop("_other", {})
-        entry["metrics"] = stable if stable is not None else other
+        stable = widest.get((scene, True))
+        entry["metrics"] = stable if stable is not None else widest.get((scene, False), {})
         entry["cells"] = digest(sorted(cells[scene]))
         entry["pairs"] = _paired_spreads(per_seed, scene)
     return {"preset": plan.preset.name, "scenes": scenes, **_stand_in_spread(scenes)}

@@ -41,7 +41,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=120, help="cameras along the orbit")
     parser.add_argument("--warmup", type=int, default=5, help="first frames left out")
     parser.add_argument("--time", type=float, default=None, help="fixed time (default: sweep 0 to 1)")
-    parser.add_argument("--modes", nargs="+", default=None, help="'MODE:SOURCE' pairs (default: see below)")
+    parser.add_argument(
+        "--modes",
+        nargs="+",
+        default=None,
+        help="'MODE:SOURCE' pairs (default: the blend, the last expert's gate map and that expert alone "
+        "for a MoE-GS model, else the first expert's rgb)",
+    )
     args = parser.parse_args(argv)
     if args.frames <= args.warmup:
         parser.error(f"--frames ({args.frames}) must exceed --warmup ({args.warmup})")
@@ -66,7 +72,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"frames/s over {args.frames - args.warmup} orbit cameras ({when}): p10 / median / p90")
     for pair in pairs:
         mode, _, source = pair.partition(":")
-        rates = frame_rates(model, orbit, mode, source or model.sources[0], args.size)
+        source = source or model.sources[0]
+        rates = frame_rates(model, orbit, mode, source, args.size)
         cells = [
             f"{size}x{size} " + " / ".join(f"{np.percentile(r[args.warmup :], q):.1f}" for q in (10, 50, 90))
             for size, r in rates.items()
