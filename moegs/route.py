@@ -442,7 +442,7 @@ def _main(args: argparse.Namespace, lock) -> int:
             (folder / ROUTER_CHECKPOINT).unlink(missing_ok=True)
         record_router_runs(folder, runs)
         result = train_router(experts, scene, config, folder, progress=not args.quiet)
-    model = load_moe(folder, experts)
+    model = load_moe(folder, experts, scene)
     figures = write_gate_figures(model, scene, folder / "gates", args.gate_views) if args.gate_views else []
     test = result["test"]
     label = f" [{scene.stand_in}]" if scene.stand_in else ""

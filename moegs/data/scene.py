@@ -228,6 +228,32 @@ class Scene:
     def is_real(self) -> bool:
         return not self.stand_in
 
+    def identity(self) -> dict[str, Any]:
+        """What a checkpoint records of the scene it trained on: name, dataset, number of training and
+        test views, frames and the training image size ``[width, height]``."""
+        cam = self.train[0].camera
+        return {
+            "name": self.name,
+            "dataset": self.dataset,
+            "train_views": len(self.train),
+            "test_views": len(self.test),
+            "frames": self.num_frames,
+            "size": [cam.width, cam.height],
+        }
+
+    def check_identity(self, saved: dict[str, Any] | None, path: Any, fields: tuple[str, ...] = ()) -> None:
+        """Refuse a checkpoint at ``path`` whose recorded scene identity (``saved``) is not this scene's:
+        its name and dataset, and ``fields`` of ``identity`` as well (a resumed run checks them all). A
+        checkpoint written before identities were recorded (``saved`` None) is accepted."""
+        if saved is None:
+            return
+        mine = self.identity()
+        differ = [k for k in ("name", "dataset", *fields) if saved.get(k) != mine[k]]
+        if differ:
+            theirs = ", ".join(f"{k} {saved.get(k)!r}" for k in differ)
+            ours = ", ".join(f"{k} {mine[k]!r}" for k in differ)
+            raise ValueError(f"{path} was trained on another scene ({theirs}), not this one ({ours})")
+
     def summary(self) -> str:
         cam = self.train[0].camera
         return (

@@ -4,11 +4,15 @@ the state (numbers, strings, lists, dicts) as JSON in the file's metadata.
 A state is a tree of dicts (string or int keys) and lists whose leaves are tensors or JSON values.
 Tensors are stored under their path (``"optim/means/state/0/exp_avg"``) and replaced in the JSON by
 ``{"__tensor__": path}``. Writes are atomic (temporary file + ``os.replace``), so an interrupted
-write never damages the previous checkpoint (``moegs.atomic``).
+write never damages the previous checkpoint (``moegs.atomic``). Each file records the SHA-256 of its
+content (the JSON and every tensor's bytes), checked on every read: a file changed or damaged after it
+was written is refused, never resumed from or evaluated. Files written before digests existed read as
+they are.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 from typing import Any
@@ -22,6 +26,7 @@ from moegs.atomic import atomic_path
 from moegs.errors import IntegrityError
 
 _META_KEY = "moegs"
+_DIGEST_KEY = "moegs_sha256"
 _TENSOR = "__tensor__"
 _INT_KEYS = "__int_keys__"
 
@@ -57,13 +62,25 @@ def _join(tree: Any, tensors: dict[str, Tensor]) -> Any:
     return tree
 
 
+def content_digest(meta: str, tensors: dict[str, Tensor]) -> str:
+    """SHA-256 of a checkpoint's JSON and of every tensor (name, dtype, shape, bytes), in name order."""
+    h = hashlib.sha256(meta.encode())
+    for name in sorted(tensors):
+        t = tensors[name].detach().cpu().contiguous()
+        h.update(f"\0{name}\0{t.dtype}\0{tuple(t.shape)}\0".encode())
+        h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes())
+    return h.hexdigest()
+
+
 def save_checkpoint(path: str | Path, state: dict) -> Path:
-    """Write ``state`` atomically to ``path`` (``.safetensors``); returns the path."""
+    """Write ``state`` atomically to ``path`` (``.safetensors``) with its content digest; returns the
+    path."""
     path = Path(path)
     tensors: dict[str, Tensor] = {}
     meta = json.dumps(_split(state, "", tensors), allow_nan=False)
+    metadata = {_META_KEY: meta, _DIGEST_KEY: content_digest(meta, tensors)}
     with atomic_path(path) as tmp:
-        save_file(tensors, str(tmp), metadata={_META_KEY: meta})
+        save_file(tensors, str(tmp), metadata=metadata)
     return path
 
 
@@ -73,16 +90,24 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> dic
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint {path} does not exist")
     try:
-        with safe_open(str(path), framework="pt", device=str(device)) as f:
-            meta = (f.metadata() or {}).get(_META_KEY)
+        with safe_open(str(path), framework="pt", device="cpu") as f:
+            metadata = f.metadata() or {}
             tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118 - safe_open has no iterator
     except Exception as err:  # safetensors raises its own SafetensorError (and OSError on short reads)
         reason = " ".join(str(err).split())
         raise IntegrityError(f"{path}: not a readable safetensors file ({reason})") from None
+    meta, digest = metadata.get(_META_KEY), metadata.get(_DIGEST_KEY)
     if meta is None:
         raise IntegrityError(
             f"{path}: a safetensors file but not a moegs checkpoint (no '{_META_KEY}' metadata)"
         )
+    if digest is not None and digest != content_digest(meta, tensors):
+        raise IntegrityError(
+            f"{path}: its content does not match the digest written with it (changed or damaged after it "
+            "was written); train again, or delete the file to start that run over"
+        )
+    if str(device) != "cpu":
+        tensors = {k: t.to(device) for k, t in tensors.items()}
     try:
         tree = json.loads(meta)
     except json.JSONDecodeError as err:

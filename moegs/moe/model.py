@@ -136,10 +136,12 @@ def read_router(path: str | Path) -> dict[str, Any]:
 
 def load_moe(path: str | Path, experts: Sequence[Expert], scene: Scene | None = None) -> MoEGS:
     """The trained MoE-GS model of ``path`` (a ``train_router`` folder or its checkpoint) over ``experts``
-    (the same trained experts, in the same order). ``scene`` is accepted for symmetry with
-    ``load_expert`` and is not needed. Returned in eval mode."""
+    (the same trained experts, in the same order); with ``scene``, a router trained on another scene is
+    refused. Returned in eval mode."""
     state = read_router(path)
     _check_experts(state, experts, Path(path))
+    if scene is not None:
+        scene.check_identity(state.get("scene"), path)
     model = MoEGS(experts, from_dict(RouterConfig, state["config"]))
     model.router.load_state_dict(state["router"])
     resp = state.get("responsibilities")

@@ -129,9 +129,12 @@ def router_step(
     return loss.detach()
 
 
-def _state(model: MoEGS, step: int, optimizers: Optimizers, sampler: ViewSampler, history: LossHistory):
+def _state(
+    model: MoEGS, scene: Scene, step: int, optimizers: Optimizers, sampler: ViewSampler, history: LossHistory
+):
     return {
         **model.checkpoint_state(),
+        "scene": scene.identity(),
         "step": step,
         "optimizers": optimizers.state_dict(),
         "sampler": sampler.state_dict(),
@@ -184,6 +187,7 @@ def train_router(
         if resume and ckpt is not None and ckpt.is_file():
             state = read_router(ckpt)
             _check_experts(state, experts, ckpt)
+            scene.check_identity(state.get("scene"), ckpt, tuple(scene.identity()))
             changed = config_changes(state["config"], to_dict(config), ("checkpoint_every",))
             if changed:
                 raise ValueError(
@@ -237,11 +241,11 @@ def train_router(
             if step % LOG_EVERY == 0:
                 bar.set_postfix(loss=f"{history.read()[-1]:.4f}")
             if ckpt is not None and config.checkpoint_every and step % config.checkpoint_every == 0:
-                save_checkpoint(ckpt, _state(model, step, optimizers, sampler, history))
+                save_checkpoint(ckpt, _state(model, scene, step, optimizers, sampler, history))
         bar.close()
         history.read()
         if ckpt is not None:
-            save_checkpoint(ckpt, _state(model, done, optimizers, sampler, history))
+            save_checkpoint(ckpt, _state(model, scene, done, optimizers, sampler, history))
 
     raise_if_stopped(stop, done, config.iterations, ckpt)
 

@@ -4,7 +4,7 @@ A checkpoint (``moegs.io.save_checkpoint`` file) holds::
 
     step, expert {name, config}, model (expert.state_dict()), optimizers, strategy_state,
     sampler, rng {torch, cuda (on a GPU)}, history (loss per step), seconds (training time so far),
-    device (where it trained: "cpu" or "cuda:<i>")
+    device (where it trained: "cpu" or "cuda:<i>"), scene (``Scene.identity``: what it trained on)
 """
 
 from __future__ import annotations
@@ -33,9 +33,11 @@ def training_state(
     sampler: dict,
     history: list[float],
     seconds: float = 0.0,
+    scene: Scene | None = None,
 ) -> dict[str, Any]:
     """The state tree saved by the training loop after iteration ``step`` (``seconds``: training time so
-    far, so that a resumed run reports the whole run's time); the expert's device is the run's."""
+    far, so that a resumed run reports the whole run's time; ``scene``: the scene it trains on); the
+    expert's device is the run's."""
     device = next(expert.parameters()).device
     return {
         "format": FORMAT,
@@ -49,6 +51,7 @@ def training_state(
         "history": list(history),
         "seconds": float(seconds),
         "device": device_name(device),
+        "scene": scene.identity() if scene is not None else None,
     }
 
 
@@ -115,6 +118,7 @@ def load_expert(
     name = state["expert"]["name"]
     if expect is not None and name != expect:
         raise ValueError(f"{path} holds a {name!r} checkpoint, but its run says {expect!r}")
+    scene.check_identity(state.get("scene"), path)
     cls = get_expert_class(name)
     config = from_dict(cls.config_class, state["expert"]["config"])
     expert = cls.from_scene(scene, config)

@@ -148,6 +148,7 @@ class TrainingRun:
                 self.sampler.state_dict(),
                 self.read_history(),
                 self.seconds,
+                self.scene,
             ),
         )
         self.saved_step = self.step
@@ -164,6 +165,7 @@ class TrainingRun:
                 "use a new out_dir or resume=False (moegs train --no-resume)"
             )
         check_device(state, self.device, path)
+        self.scene.check_identity(state.get("scene"), path, tuple(self.scene.identity()))
         restore_model(self.expert, state["model"])
         self.step = self.checked_step = state["step"]
         self.expert.on_step(self.step)  # replays the stage of the last finished step

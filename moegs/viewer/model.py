@@ -167,7 +167,7 @@ def load_model(paths: list[str | Path], device=None) -> ViewModel:
             raise FileNotFoundError(f"{router} has no {RUNS_RECORD} naming its expert runs; route them again")
         runs = [router / r for r in read_json(record, "router runs")["runs"]]
         scene, experts, backend = _load_runs(runs, device)
-        moe = load_moe(router, experts)
+        moe = load_moe(router, experts, scene)
         return ViewModel(scene, experts, moe, moe.config.backend or backend, f"MoE-GS {router}")
     for folder in folders:
         if not (folder / "config.json").is_file():

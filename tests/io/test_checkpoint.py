@@ -122,6 +122,28 @@ def test_damaged_metadata_and_json_files_name_the_file(tmp_path):
         read_json(tmp_path / "latin1.json")
 
 
+def test_a_changed_byte_anywhere_is_refused_and_old_files_still_read(tmp_path):
+    """The content digest written with a checkpoint catches a flipped bit in a tensor and an edited value
+    in its JSON; a file from before digests (moegs metadata, no digest) reads as it is."""
+    from moegs.errors import IntegrityError
+
+    path = save_checkpoint(tmp_path / "ckpt.safetensors", {"step": 3, "w": torch.arange(64.0)})
+    raw = path.read_bytes()
+    flipped = bytearray(raw)
+    flipped[-9] ^= 0x01  # inside the last tensor's data
+    (tmp_path / "flipped.safetensors").write_bytes(bytes(flipped))
+    with pytest.raises(IntegrityError, match="flipped.safetensors: its content does not match the digest"):
+        load_checkpoint(tmp_path / "flipped.safetensors")
+    edited = raw.replace(b'\\"step\\": 3', b'\\"step\\": 7')  # the JSON sits escaped in the header
+    assert edited != raw and len(edited) == len(raw)
+    (tmp_path / "edited.safetensors").write_bytes(edited)
+    with pytest.raises(IntegrityError, match="edited.safetensors: its content does not match the digest"):
+        load_checkpoint(tmp_path / "edited.safetensors")
+    meta = json.dumps({"step": 3, "w": {"__tensor__": "w"}})
+    save_file({"w": torch.arange(4.0)}, tmp_path / "old.safetensors", metadata={"moegs": meta})
+    assert load_checkpoint(tmp_path / "old.safetensors")["step"] == 3
+
+
 def test_a_failed_json_write_leaves_no_temporary_file(tmp_path):
     from moegs.io import write_json
 

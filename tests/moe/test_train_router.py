@@ -140,6 +140,17 @@ def test_interrupted_training_resumes_exactly(scene, experts, tmp_path):
     assert resumed["test"]["psnr"] == pytest.approx(full["test"]["psnr"], abs=1e-4)
 
 
+def test_a_router_refuses_another_scene(scene, experts, tmp_path):
+    train_router(experts, scene, cfg(iterations=4), tmp_path, stop_after=2)
+    fewer = replace(scene, train=scene.train[:-1])
+    with pytest.raises(ValueError, match="trained on another scene"):
+        train_router(experts, fewer, cfg(iterations=4), tmp_path)
+    train_router(experts, scene, cfg(iterations=4), tmp_path)
+    with pytest.raises(ValueError, match="trained on another scene .name 'tiny'"):
+        load_moe(tmp_path, experts, replace(scene, name="synthetic:other"))
+    assert load_moe(tmp_path, experts, scene) is not None
+
+
 def test_reload_restores_the_trained_router(scene, experts, tmp_path):
     """The reloaded model scores exactly what training evaluated in memory, and its router is the trained
     one, not a fresh initialisation."""

@@ -122,6 +122,23 @@ def test_resume_refuses_another_config(scene, tmp_path):
         train(other, scene, out_dir=tmp_path, progress=False)
 
 
+def test_resume_and_reload_refuse_another_scene(scene, tmp_path):
+    """A checkpoint records the scene it trained on: resuming needs the same scene (views, frames, size),
+    loading the same scene name; a checkpoint of the same scene loaded at another size is accepted."""
+    from dataclasses import replace
+
+    train(_static(scene), scene, out_dir=tmp_path, progress=False, stop_after=5)
+    assert load_checkpoint(tmp_path / CHECKPOINT_NAME)["scene"] == scene.identity()
+    fewer = replace(scene, train=scene.train[:-1])
+    views = r"trained on another scene \(train_views 12\), not this one \(train_views 11\)"
+    with pytest.raises(ValueError, match=views):
+        train(_static(fewer), fewer, out_dir=tmp_path, progress=False)
+    other = replace(scene, name="synthetic:other")
+    with pytest.raises(ValueError, match="trained on another scene .name 'tiny'.*name 'synthetic:other'"):
+        load_expert(tmp_path, other)
+    load_expert(tmp_path, fewer)  # same scene name: evaluation may use other views or sizes
+
+
 class _InfiniteGradient(StaticExpert):
     """sqrt(x - x) has value 0 but an infinite gradient: trips the gradient check at step 7."""
 
