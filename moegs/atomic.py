@@ -8,7 +8,9 @@ the old file open (or mapped, like a loaded kernel library) keeps reading the ol
 
 from __future__ import annotations
 
+import errno
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -37,5 +39,15 @@ def atomic_path(path: str | Path, executable: bool = False) -> Iterator[Path]:
         yield tmp
         os.chmod(tmp, umask_mode(executable))  # writers that make their own file (safetensors) give 0600
         os.replace(tmp, path)
+    except OSError as err:
+        if err.errno in (errno.ENOSPC, errno.EDQUOT):  # writers often name no file: name it and the space
+            free = shutil.disk_usage(path.parent).free
+            full = OSError(
+                f"cannot write {path}: no space left on its disk ({free / 2**20:.1f} MiB free); "
+                "free some space and run the command again (finished files are kept)"
+            )
+            full.errno = err.errno
+            raise full from None
+        raise
     finally:
         tmp.unlink(missing_ok=True)

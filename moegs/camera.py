@@ -12,6 +12,26 @@ from dataclasses import dataclass, field, replace
 import torch
 from torch import Tensor
 
+ROTATION_TOLERANCE = 1e-3
+"""Largest entry of ``|R^T R - I|`` a camera rotation may have: datasets store poses in float32 or to six
+decimals (D-NeRF's mutant: 5e-6; Panoptic's basketball: 1e-10); a scaled or sheared matrix is far off."""
+
+
+def rotation_problem(R: Tensor) -> str:
+    """What keeps ``R [3, 3]`` from being a rotation, or "" when it is one: singular, not orthonormal
+    within ``ROTATION_TOLERANCE``, or a reflection (determinant -1: the camera would see a mirror image)."""
+    R = R.detach().cpu().double()
+    det = float(torch.linalg.det(R))
+    if abs(det) < 1e-9:
+        return "is singular"
+    error = float((R.T @ R - torch.eye(3, dtype=torch.float64)).abs().max())
+    if error > ROTATION_TOLERANCE:
+        tolerance = f"tolerance {ROTATION_TOLERANCE:g}"
+        return f"is not orthonormal (largest entry of |R^T R - I|: {error:.3g}; {tolerance})"
+    if det < 0:
+        return "is a reflection (determinant -1), not a rotation: the camera would see the scene mirrored"
+    return ""
+
 
 @dataclass(frozen=True)
 class Camera:
@@ -65,8 +85,9 @@ class Camera:
         fx, fy = float(K[0, 0]), float(K[1, 1])
         if not (fx > 0 and fy > 0):
             raise ValueError(f"Camera {self.name!r} needs positive focal lengths, got fx={fx}, fy={fy}")
-        if abs(float(torch.linalg.det(w2c[:3, :3].double()))) < 1e-9:
-            raise ValueError(f"Camera {self.name!r} has a singular world_to_camera rotation")
+        problem = rotation_problem(w2c[:3, :3])
+        if problem:
+            raise ValueError(f"Camera {self.name!r}: its world_to_camera rotation {problem}")
         return fx, fy, float(K[0, 2]), float(K[1, 2])
 
     # -- derived quantities -------------------------------------------------------------------

@@ -119,6 +119,24 @@ def _swap_checkpoint(run: Path) -> None:
     )
 
 
+def _flip_a_bit(run: Path) -> None:
+    """A bit of the checkpoint's last tensor flipped after it was written (disk or copy damage)."""
+    path = run / "checkpoint.safetensors"
+    raw = bytearray(path.read_bytes())
+    raw[-5] ^= 0x10
+    path.write_bytes(bytes(raw))
+
+
+def _other_scene(run: Path) -> None:
+    """The checkpoint rewritten (with a valid digest) as if trained on another scene."""
+    from moegs.io import load_checkpoint, save_checkpoint
+
+    path = run / "checkpoint.safetensors"
+    state = load_checkpoint(path)
+    state["scene"]["name"] = "synthetic:n3v_like"
+    save_checkpoint(path, state)
+
+
 def _edit_config(run: Path, change) -> None:
     path = run / "config.json"
     data = json.loads(path.read_text())
@@ -158,6 +176,8 @@ BROKEN_RUNS = {  # name: (damage(run), argv after the command, expected message;
     "no checkpoint": (lambda r: (r / "checkpoint.safetensors").unlink(), "eval", "checkpoint {run}/checkpoint.safetensors does not exist"),
     "truncated checkpoint": (lambda r: (r / "checkpoint.safetensors").write_bytes((r / "checkpoint.safetensors").read_bytes()[:100]), "eval", "{run}/checkpoint.safetensors: not a readable safetensors file ("),
     "empty checkpoint": (lambda r: (r / "checkpoint.safetensors").write_bytes(b""), "eval", "{run}/checkpoint.safetensors: not a readable safetensors file ("),
+    "checkpoint with a flipped bit": (_flip_a_bit, "eval", "{run}/checkpoint.safetensors: its content does not match the digest written with it (changed or damaged after it was written); train again, or delete the file to start that run over"),
+    "checkpoint of another scene": (_other_scene, "eval", "{run}/checkpoint.safetensors was trained on another scene (name 'synthetic:n3v_like'), not this one (name 'synthetic:dnerf_like')"),
     "checkpoint of another expert": (_swap_checkpoint, "eval", "{run}/checkpoint.safetensors holds a 'mcmc' checkpoint, but its run says 'static'"),
     "crafted config type": (_crafted_type, "eval", "config _type 'subprocess:Popen' is not Strategy or a moegs subclass of it"),
     "render: truncated checkpoint": (lambda r: (r / "checkpoint.safetensors").write_bytes(b"\x00" * 9), "render", "{run}/checkpoint.safetensors: not a readable safetensors file ("),
@@ -346,7 +366,10 @@ DNERF = {
     "matrix of strings": (_frame_field("transform_matrix", [["a"] * 4] * 4), TypeError, "{path}: frames[1].transform_matrix must be a 4x4 array of numbers"),
     "matrix ragged": (_frame_field("transform_matrix", [[1, 0, 0, 0], [0, 1]]), TypeError, "{path}: frames[1].transform_matrix must be a 4x4 array of numbers"),
     "matrix with NaN": (_frame_field("transform_matrix", [[math.nan] * 4] * 4), ValueError, "{path}: frames[1].transform_matrix has NaN or Inf"),
-    "matrix singular": (_frame_field("transform_matrix", [[0.0] * 4] * 3 + [[0, 0, 0, 1]]), ValueError, "{path}: frames[1].transform_matrix has a singular rotation"),
+    "matrix singular": (_frame_field("transform_matrix", [[0.0] * 4] * 3 + [[0, 0, 0, 1]]), ValueError, "{path}: frames[1].transform_matrix: its rotation is singular"),
+    "matrix scaled": (_frame_field("transform_matrix", [[2.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]), ValueError, "{path}: frames[1].transform_matrix: its rotation is not orthonormal (largest entry of |R^T R - I|: 3; tolerance 0.001)"),
+    "matrix mirrored": (_frame_field("transform_matrix", [[-1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]), ValueError, "{path}: frames[1].transform_matrix: its rotation is a reflection (determinant -1), not a rotation: the camera would see the scene mirrored"),
+    "image read twice": (lambda d: d["frames"][1].__setitem__("file_path", d["frames"][0]["file_path"]), ValueError, "{path}: frames[1] reads {root}/train/r_000.png, which transforms_train.json frames[0] reads too; each view needs its own image"),
     "time a string": (_frame_field("time", "0.5"), TypeError, "{path}: frames[1].time must be a finite number, got '0.5'"),
     "time above 1": (_frame_field("time", 1.5), ValueError, "{path}: frames[1].time = 1.5 is outside [0, 1]"),
     "time negative": (_frame_field("time", -0.1), ValueError, "{path}: frames[1].time = -0.1 is outside [0, 1]"),
@@ -425,7 +448,7 @@ def test_loader_json_fields_are_checked(dataset, case, tmp_path):
     change, error, message = cases[case]
     root, path = _edited(tmp_path, write, name, change)
     text = _error_text(lambda: load(root), error)
-    assert text == message.format(path=path), text
+    assert text == message.format(path=path, root=root), text
 
 
 # -- 4. checkpoint files ----------------------------------------------------------------------------
@@ -439,6 +462,7 @@ CHECKPOINTS = {
     "missing": (lambda p: p.unlink(), FileNotFoundError, "checkpoint {path} does not exist"),
     "empty": (lambda p: p.write_bytes(b""), "IntegrityError", "{path}: not a readable safetensors file ("),
     "truncated": (lambda p: p.write_bytes(p.read_bytes()[:-5]), "IntegrityError", "{path}: not a readable safetensors file ("),
+    "a bit flipped": (lambda p: p.write_bytes(p.read_bytes()[:-1] + bytes([p.read_bytes()[-1] ^ 1])), "IntegrityError", "{path}: its content does not match the digest written with it (changed or damaged after it was written); train again, or delete the file to start that run over"),
     "random bytes": (lambda p: p.write_bytes(bytes(range(256)) * 4), "IntegrityError", "{path}: not a readable safetensors file ("),
     "text file": (lambda p: p.write_text("hello"), "IntegrityError", "{path}: not a readable safetensors file ("),
 }  # fmt: skip
@@ -633,7 +657,8 @@ FRAMES = {
 CAMERAS = {
     "zero focal": (dict(K=intrinsics(0.0, 20.0, 8.0, 8.0)), "Camera '' needs positive focal lengths, got fx=0.0, fy=20.0"),
     "negative focal": (dict(K=intrinsics(20.0, -20.0, 8.0, 8.0)), "Camera '' needs positive focal lengths, got fx=20.0, fy=-20.0"),
-    "singular rotation": (dict(world_to_camera=torch.diag(torch.tensor([1.0, 0.0, 1.0, 1.0]))), "Camera '' has a singular world_to_camera rotation"),
+    "singular rotation": (dict(world_to_camera=torch.diag(torch.tensor([1.0, 0.0, 1.0, 1.0]))), "Camera '': its world_to_camera rotation is singular"),
+    "sheared rotation": (dict(world_to_camera=torch.tensor([[1.0, 0.5, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])), "Camera '': its world_to_camera rotation is not orthonormal (largest entry of |R^T R - I|: 0.5; tolerance 0.001)"),
     "K 2x2": (dict(K=torch.eye(2)), "Camera.K must have shape [3, 3], got [2, 2]"),
     "w2c 3x4": (dict(world_to_camera=torch.zeros(3, 4)), "Camera.world_to_camera must have shape [4, 4], got [3, 4]"),
     "zero width": (dict(width=0), "Camera size must be positive, got 0x16"),

@@ -108,9 +108,15 @@ def parse_scene_name(name: str) -> tuple[str, str]:
     dataset = dataset.strip().lower()
     if dataset not in _DATASETS:
         raise ValueError(f"unknown dataset {dataset!r} in {name!r}; valid datasets: {list_datasets()}")
+    scene = scene.strip()
     if not scene:
         raise ValueError(f"scene name {name!r} has no scene after ':'")
-    return dataset, scene.strip()
+    if "/" in scene or "\\" in scene or scene in (".", ".."):
+        raise ValueError(
+            f"scene name {name!r}: the part after ':' names a scene folder under MOEGS_DATA/{dataset}/ "
+            "(no '/', '\\', '.' or '..')"
+        )
+    return dataset, scene
 
 
 def canonical_scene(name: str) -> str:

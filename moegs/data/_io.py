@@ -34,10 +34,14 @@ RESAMPLE = {
 
 # -- files and JSON ---------------------------------------------------------------------------------
 def require_file(path: Path, what: str) -> Path:
-    """``path`` if it is a file, else ``FileNotFoundError`` naming it and what it should hold."""
-    if not path.is_file():
-        raise FileNotFoundError(f"{what}: expected file {path} but it does not exist")
-    return path
+    """``path`` if it is a regular file, else ``FileNotFoundError`` naming it, what it should hold and, when
+    something else is there, what (a directory, a FIFO that reading would block on, a socket...)."""
+    if path.is_file():
+        return path
+    if path.exists():
+        found = "a directory" if path.is_dir() else "a FIFO" if path.is_fifo() else "no regular file"
+        raise FileNotFoundError(f"{what}: expected a file at {path} but found {found}")
+    raise FileNotFoundError(f"{what}: expected file {path} but it does not exist")
 
 
 def load_json(path: Path, what: str) -> Any:

@@ -10,14 +10,16 @@ Entries are keyed by the source files' resolved paths, sizes and modification ti
 loading argument. Initial point clouds computed from images (``cached_points``: Panoptic's
 triangulation, 7-10 s per load of basketball) are kept the same way. Only images of at most
 ``MAX_PIXELS`` pixels are stored (training resolutions of the quick and standard presets;
-full-resolution video frames would fill the disk). ``MOEGS_DECODED_CACHE=0`` turns it
-off.
+full-resolution video frames would fill the disk). Each entry stores the SHA-256 of its arrays, checked
+when read: a damaged or edited entry is decoded again and overwritten, never used. ``MOEGS_DECODED_CACHE=0``
+turns it off.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import zipfile
 from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
@@ -38,19 +40,43 @@ def enabled() -> bool:
     return os.environ.get("MOEGS_DECODED_CACHE", "1") != "0"
 
 
-def _entry(kind: str, sources: Sequence[Path], args: tuple, suffix: str = ".npy") -> Path:
+def _digest(*arrays: np.ndarray) -> str:
+    """SHA-256 of ``arrays`` (dtype, shape and bytes of each)."""
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(f"{a.dtype}{a.shape}".encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def _entry(kind: str, sources: Sequence[Path], args: tuple, suffix: str = ".npz") -> Path:
     stats = [(str(s.resolve()), s.stat().st_size, s.stat().st_mtime_ns) for s in sources]
     digest = hashlib.sha256(repr((kind, stats, args)).encode()).hexdigest()
     return cache_root() / "decoded" / digest[:2] / f"{digest}{suffix}"
 
 
-def _read(path: Path, shape: tuple[int, ...], dtype: torch.dtype) -> Tensor | None:
+def _load(path: Path, names: tuple[str, ...]) -> list[np.ndarray] | None:
+    """The arrays ``names`` of the entry at ``path`` when its stored digest matches them, else None
+    (missing, truncated, damaged or edited: decode again and overwrite)."""
     try:
-        arr = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError):
-        return None  # missing, truncated or damaged: decode again and overwrite
-    value = torch.from_numpy(arr)
+        with np.load(path, allow_pickle=False) as z:
+            arrays, digest = [z[n] for n in names], str(z["sha256"])
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile):
+        return None
+    return arrays if digest == _digest(*arrays) else None
+
+
+def _read(path: Path, shape: tuple[int, ...], dtype: torch.dtype) -> Tensor | None:
+    arrays = _load(path, ("value",))
+    if arrays is None:
+        return None
+    value = torch.from_numpy(arrays[0])
     return value if value.shape == shape and value.dtype == dtype else None
+
+
+def _save_arrays(file: BinaryIO, **arrays: np.ndarray) -> None:
+    """``arrays`` and their digest (``sha256``) into one ``.npz``."""
+    np.savez(file, **arrays, sha256=np.array(_digest(*arrays.values())))
 
 
 def _write(path: Path, save: Callable[[BinaryIO], None]) -> None:
@@ -82,7 +108,7 @@ def cached(
     if value is None:
         value = load()
         if value.dtype == dtype and tuple(value.shape) == shape:
-            _write(entry, partial(np.save, arr=value.contiguous().numpy()))
+            _write(entry, partial(_save_arrays, value=value.contiguous().numpy()))
     return value
 
 
@@ -92,17 +118,15 @@ def cached_points(sources: Sequence[Path], args: tuple, load: Callable[[], Point
     if not enabled():
         return load()
     try:
-        entry = _entry("points", sources, args, ".npz")
+        entry = _entry("points", sources, args)
     except OSError:
         return load()
-    try:
-        with np.load(entry, allow_pickle=False) as z:
-            xyz, rgb, source = z["xyz"], z["rgb"], str(z["source"])
-        return PointCloud(torch.from_numpy(xyz), torch.from_numpy(rgb), source)
-    except (OSError, ValueError, EOFError, KeyError):
-        pass  # missing or damaged: compute again and overwrite
+    arrays = _load(entry, ("xyz", "rgb", "source"))
+    if arrays is not None:
+        xyz, rgb, source = arrays
+        return PointCloud(torch.from_numpy(xyz), torch.from_numpy(rgb), str(source))
     points = load()
     if points.times is None:
-        arrays = {"xyz": points.xyz.numpy(), "rgb": points.rgb.numpy(), "source": np.array(points.source)}
-        _write(entry, lambda f: np.savez(f, **arrays))
+        values = {"xyz": points.xyz.numpy(), "rgb": points.rgb.numpy(), "source": np.array(points.source)}
+        _write(entry, partial(_save_arrays, **values))
     return points

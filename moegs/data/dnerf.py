@@ -31,7 +31,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from moegs.camera import Camera, intrinsics
+from moegs.camera import Camera, intrinsics, rotation_problem
 from moegs.data._init_points import box_points
 from moegs.data._io import (
     background_color,
@@ -63,8 +63,16 @@ def w2c_to_blender(w2c: Tensor) -> Tensor:
 
 
 def _read_split(
-    root: Path, split: str, scale: float, bg: Tensor, resample: str, native: tuple[int, int] | None
+    root: Path,
+    split: str,
+    scale: float,
+    bg: Tensor,
+    resample: str,
+    native: tuple[int, int] | None,
+    used: dict[Path, str],
 ) -> tuple[list[View], tuple[int, int]]:
+    """The views of one split; ``used`` (image file -> the split and frame that read it) is filled, and an
+    image read twice, within a split or by both (a test view that is trained on), is refused."""
     path = root / f"transforms_{split}.json"
     meta = load_json(path, f"D-NeRF {split} split (expected transforms_{split}.json in {root})")
     angle = number(meta, "camera_angle_x", path)
@@ -76,11 +84,17 @@ def _read_split(
         where = f"frames[{i}]"
         rel = text(fr, "file_path", path, where)
         img_path = (root / rel).with_suffix(".png") if not rel.endswith(".png") else root / rel
+        first = used.setdefault(img_path.resolve(), f"transforms_{split}.json {where}")
+        if first != f"transforms_{split}.json {where}":
+            raise ValueError(
+                f"{path}: {where} reads {img_path}, which {first} reads too; each view needs its own image"
+            )
         if native is None:
             native = image_size(img_path)
         c2w = matrix(fr, "transform_matrix", path, (4, 4), where)
-        if abs(float(torch.linalg.det(c2w[:3, :3]))) < 1e-9:
-            raise ValueError(f"{path}: {where}.transform_matrix has a singular rotation")
+        problem = rotation_problem(c2w[:3, :3])
+        if problem:
+            raise ValueError(f"{path}: {where}.transform_matrix: its rotation {problem}")
         t = number(fr, "time", path, where)
         if not 0.0 <= t <= 1.0:
             raise ValueError(f"{path}: {where}.time = {t} is outside [0, 1]")
@@ -138,8 +152,9 @@ def load_dnerf(
     if test_split not in ("test", "val"):
         raise ValueError(f"D-NeRF test_split must be 'test' or 'val', got {test_split!r}")
     bg = background_color(background)
-    train, native = _read_split(root, "train", resolution_scale, bg, resample, None)
-    test, _ = _read_split(root, test_split, resolution_scale, bg, resample, native)
+    used: dict[Path, str] = {}
+    train, native = _read_split(root, "train", resolution_scale, bg, resample, None, used)
+    test, _ = _read_split(root, test_split, resolution_scale, bg, resample, native, used)
     bbox = torch.tensor([[-BOX] * 3, [BOX] * 3])
     points = box_points(bbox, num_points, seed) if num_points > 0 else None
     return loaded_scene(

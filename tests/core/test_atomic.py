@@ -3,6 +3,7 @@ permissions, and no temporary is left behind either way."""
 
 from __future__ import annotations
 
+import errno
 import os
 import stat
 
@@ -50,3 +51,17 @@ def test_a_writer_that_replaces_the_temporary_gets_the_umask_permissions(tmp_pat
     finally:
         os.umask(old)
     assert _mode(tmp_path / "lib.so") == 0o755 and _mode(tmp_path / "data.bin") == 0o644
+
+
+def test_a_full_disk_is_one_line_naming_the_file(tmp_path):
+    """Writers (safetensors, numpy) report a full disk without the file's name: the error names it and the
+    space left, the old file stays and no temporary is left."""
+    path = tmp_path / "checkpoint.safetensors"
+    path.write_text("old")
+    with pytest.raises(OSError) as caught, atomic_path(path) as tmp:
+        tmp.write_text("half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+    message = str(caught.value)
+    assert caught.value.errno == errno.ENOSPC and "\n" not in message
+    assert message.startswith(f"cannot write {path}: no space left on its disk (") and "MiB free)" in message
+    assert path.read_text() == "old" and os.listdir(tmp_path) == ["checkpoint.safetensors"]

@@ -33,7 +33,7 @@ def rgba(tmp_path) -> Path:
 
 
 def _entries(cache: Path) -> list[Path]:
-    return sorted(cache.rglob("*.npy")) if cache.exists() else []
+    return sorted(cache.rglob("*.npz")) if cache.exists() else []
 
 
 def test_second_load_reads_the_stored_result_bit_for_bit(cache, rgba, monkeypatch):
@@ -65,17 +65,32 @@ def test_every_argument_and_the_file_itself_are_in_the_key(cache, rgba):
     assert len(_entries(cache)) == 6
 
 
-def test_damaged_entry_is_decoded_again_and_replaced(cache, rgba):
+def _store(entry: Path, value: np.ndarray, digest_of: np.ndarray | None = None) -> None:
+    """An entry holding ``value`` with the digest of ``digest_of`` (default: of ``value`` itself)."""
+    with open(entry, "wb") as f:
+        np.savez(f, value=value, sha256=np.array(decoded._digest(value if digest_of is None else digest_of)))
+
+
+def test_damaged_or_edited_entry_is_decoded_again_and_replaced(cache, rgba):
     good = _io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic")
     (entry,) = _entries(cache)
+
+    def reload() -> None:
+        again = _io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic")
+        torch.testing.assert_close(again, good, rtol=0, atol=0)
+
     entry.write_bytes(entry.read_bytes()[:100])  # truncated
-    torch.testing.assert_close(_io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic"), good, rtol=0, atol=0)
-    np.save(entry, np.zeros((3, 3), np.uint8))  # wrong shape
-    torch.testing.assert_close(_io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic"), good, rtol=0, atol=0)
-    np.save(entry, np.zeros((32, 24, 3), np.float32))  # wrong dtype (a float32 image of an older library)
-    torch.testing.assert_close(_io.load_rgb(rgba, (48, 64), (24, 32), WHITE, "bicubic"), good, rtol=0, atol=0)
-    assert np.load(entry).dtype == np.uint8
-    assert np.load(entry).shape == (32, 24, 3)
+    reload()
+    _store(entry, np.zeros((3, 3), np.uint8))  # wrong shape
+    reload()
+    _store(entry, np.zeros((32, 24, 3), np.float32))  # wrong dtype (a float32 image of an older library)
+    reload()
+    edited = good.numpy().copy()
+    edited[0, 0, 0] ^= 1
+    _store(entry, edited, digest_of=good.numpy())  # one value changed after it was written
+    reload()
+    with np.load(entry) as z:
+        assert np.array_equal(z["value"], good.numpy()) and str(z["sha256"]) == decoded._digest(good.numpy())
 
 
 def test_rgba_ground_truth_is_the_truncated_8bit_composite_of_the_gs_loaders(rgba):
