@@ -66,8 +66,10 @@ DATASETS: dict[str, Dataset] = by_name(
             paper_protocol={"resolution_scale": 0.5, "frames": (0, 300)},
             # STG† of Tables III/V/XII: MoE-GS's code trains STG on N3V with SH colours and the Ex4DGS
             # rasteriser instead of the feature decoder (official_moegs.md section 8), which also lets
-            # it join the volume router and the lifting. Its 150-frame segments follow from `frames`.
-            expert_config={"stg": {"color": "sh", "antialiased": True}},
+            # it join the volume router and the lifting. Two 150-frame models (frames 0-149 and 150-299:
+            # cvsp-lab/MoE-GS README, "Stage 1"), not STG's own 50-frame windows. The optimiser stays
+            # STG's Adam: RAdam is stored only for the router stage, the STG† pretraining code is not.
+            expert_config={"stg": {"color": "sh", "antialiased": True, "segment_frames": 150}},
         ),
         Dataset(
             "technicolor",

@@ -208,7 +208,9 @@ class STGConfig(ExpertConfig):
 
     @classmethod
     def moe_sh(cls) -> STGConfig:
-        """MoE-GS's N3V STG†: SH degree 3, RAdam, Ex4DGS rasteriser, two 150-frame segments."""
+        """MoE-GS's N3V STG† as its README describes it (SH degree 3, Ex4DGS rasteriser, two 150-frame
+        segments), with RAdam: the optimiser of the authors' stored router stage, their STG† pretraining
+        code is not stored, so RAdam is unverified (the bench's STG† keeps STG's Adam)."""
         return cls(color="sh", optimizer="radam", antialiased=True, segment_frames=150)
 
     @classmethod

@@ -150,13 +150,20 @@ class PixelRouter(nn.Module):
     """Image-space router (paper Fig. "Router_detail", top-left): a conv MLP on every expert's colour
     ``[3K]``, the ray ``r(u) [6]`` and the time ``[1]`` predicts ``K`` logits per pixel; no Gaussian
     information. The paper gives no architecture: two hidden layers of ``pixel_hidden`` with ReLU and the
-    same kernel as Phi (our reading)."""
+    same kernel as Phi (our reading), the output layer starting at zero so that every expert starts with
+    the same logit, as every router of the authors' code starts (equal ``w``, one Phi shared by the
+    experts). A randomly initialised output layer gave each expert its own initial bias: divided by the
+    code's training temperature (0.01) the softmax was one-hot from the first step, its gradients vanished,
+    and the router stayed on whichever expert drew the largest bias (issue 66, item 10)."""
 
     def __init__(self, experts: Sequence[Expert], config: RouterConfig) -> None:
         super().__init__()
         self.config = config
         k, h = len(experts), config.pixel_hidden
         self.phi = _phi(3 * k + 7, (h, h), k, config.phi_kernel, bias=True, device=experts_device(experts))
+        with torch.no_grad():
+            self.phi[-1].weight.zero_()
+            self.phi[-1].bias.zero_()
 
     def param_groups(self) -> dict[str, list[Tensor]]:
         return {"phi": list(self.phi.parameters())}

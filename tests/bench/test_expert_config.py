@@ -33,6 +33,9 @@ def test_stg_dagger_on_n3v_and_technicolor(monkeypatch):
         assert dict(tasks["stg"].params["config"]) == get_dataset(name).expert_config["stg"]
         recipe = recipe_of(Ctx("quick"), tasks["stg"])
         assert recipe.config.color == "sh" and recipe.config.antialiased
+    # MoE-GS's README: STG† on N3V is two 150-frame models (0-149, 150-299), not six 50-frame ones
+    assert recipe_of(Ctx("quick"), n3v["stg"]).config.segment_frames == 150
+    assert recipe_of(Ctx("quick"), n3v["stg"]).config.optimizer == "adam"  # RAdam unverified for STG†
     # one stand-in, two datasets: each build takes its dataset's recipe (E-D3DGS: N3V vs Technicolor)
     assert n3v["ed3dgs"].key != technicolor["ed3dgs"].key
     assert recipe_of(Ctx("quick"), n3v["ed3dgs"]).base == "paper"

@@ -183,6 +183,34 @@ def test_the_pixel_router_sees_the_time(scene):
     assert (early.logits - late.logits).abs().max() > 1e-3
 
 
+def test_the_pixel_router_starts_level_and_learns_at_the_codes_temperature(scene, experts):
+    """Its output layer starts at zero: every expert the same logit, gates 1/K everywhere (a random output
+    layer made the softmax at T = 0.01 one-hot from the first step, and the router never moved). A few
+    steps at the code's training temperature then move the gates away from uniform."""
+    from moegs.moe.train import router_param_groups
+    from moegs.train.losses import photometric
+    from moegs.train.optim import Optimizers
+
+    torch.manual_seed(0)
+    model = MoEGS(experts, config("pixel", train_temperature=0.01))
+    view = scene.train[0]
+    with torch.no_grad():
+        start = model.render(view.camera, scene.background)
+    torch.testing.assert_close(start.gates, torch.full_like(start.gates, 1 / 3))
+    model.train()
+    optimizers = Optimizers(router_param_groups(model))
+    for step in range(1, 6):
+        optimizers.set_step(step)
+        out = model.render(view.camera, scene.background)
+        photometric(out.image, view.image(), 0.2).backward()
+        optimizers.step()
+        optimizers.zero_grad()
+    model.eval()
+    with torch.no_grad():
+        gates = model.render(view.camera, scene.background).gates
+    assert (gates - 1 / 3).abs().max() > 0.05 and gates.max(0).values.min() < 0.99  # moved, not collapsed
+
+
 def test_mixed_colour_widths_are_padded_and_decoded(scene):
     """An STG expert with the full feature model (9 channels + decoder) renders in the same pass as RGB."""
     stg = make_expert("stg", scene)
