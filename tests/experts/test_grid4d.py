@@ -178,3 +178,22 @@ def test_presets_and_config_round_trip():
     quick = Grid4DConfig.from_preset("quick")
     assert from_dict(Grid4DConfig, to_dict(quick)) == quick
     assert from_dict(Grid4DConfig, to_dict(n3v)) == n3v
+
+
+def test_the_bound_comes_from_the_scene_where_grid4d_has_no_configuration():
+    """D-NeRF, N3V and HyperNeRF keep their configured bounds; Panoptic, Technicolor and the stand-ins
+    derive it from the scene's bounds (the N3V bound of 30 left most of each grid axis empty there)."""
+    from helpers.scenes import tiny_scene
+
+    from moegs.experts.grid4d import BOUND_MARGIN, Grid4DExpert, scene_bound
+    from moegs.recipes import config_for
+
+    assert config_for("grid4d", "dnerf:mutant", "paper").config.bound == 1.6
+    assert config_for("grid4d", "n3v:sear_steak", "paper").config.bound == 30.0
+    for scene in ("synthetic:n3v_like", "panoptic:basketball", "technicolor:birthday"):
+        assert config_for("grid4d", scene, "quick").config.bound is None, scene
+    scene = tiny_scene()
+    config = config_for("grid4d", "synthetic:n3v_like", "quick").config
+    expert = Grid4DExpert.from_scene(scene, config)
+    assert expert.config.bound == scene_bound(scene) == round(BOUND_MARGIN * float(scene.bbox.abs().max()), 3)
+    assert expert.fields.encoder.bound == expert.config.bound
