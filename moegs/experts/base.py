@@ -371,6 +371,11 @@ class Expert(nn.Module, metaclass=abc.ABCMeta):
         error-guided sampling, STG same-time view pairs, Ex4DGS progressive frames)."""
         return None
 
+    def on_views(self, left: int) -> None:
+        """Called with the views the loop's sampler held before drawing this step's batch (its stack, which
+        shrinks through an epoch; ``ViewSampler.left``); default: nothing. Not called when
+        ``select_views`` picks the views."""
+
     def observe(self, step: int, view: View, rgb: Tensor, target: Tensor, out: RenderOutput) -> Tensor | None:
         """Called after each training view's loss, before ``backward``: an extra loss term for that view
         (or None); experts also record per-view errors here (default: nothing)."""

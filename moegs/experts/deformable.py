@@ -112,6 +112,10 @@ class DeformableConfig(StaticConfig):
     """AST multiplier at step 0 (``get_linear_noise_func(lr_init=0.1)``)."""
     time_noise_steps: int = 20_000
     """AST multiplier reaches 0 here (``max_steps=20000``)."""
+    time_noise_over_left: bool = True
+    """AST's time step is 1 / the views left in the epoch's camera stack, as ``train.py:79-85`` computes
+    ``total_frame = len(viewpoint_stack)`` before each pop (from 1/n up to 1/1 through an epoch); False:
+    1 / all training views."""
     deform_lr: float = 1.6e-4
     """Deformation MLP initial lr, times ``spatial_lr_scale`` (``position_lr_init * 5`` = 8e-4)."""
     deform_lr_final: float = 1.6e-6
@@ -206,8 +210,12 @@ class DeformableExpert(DeformingExpert):
     @classmethod
     def from_scene(cls, scene: Scene, config: DeformableConfig) -> DeformableExpert:
         splats, scale = cls.canonical(scene, config)
-        # AST: the original divides by the length of its (shrinking) camera stack; we use the full stack
         return cls(config, splats, scale, time_interval=1.0 / len(scene.train))
+
+    def on_views(self, left: int) -> None:
+        """AST over the shrinking camera stack (``time_noise_over_left``)."""
+        if self.config.time_noise_over_left and left > 0:
+            self.time_interval = 1.0 / left
 
     @property
     def deforming(self) -> bool:

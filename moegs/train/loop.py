@@ -196,7 +196,10 @@ class TrainingRun:
             self.optimizers = Optimizers(expert.param_groups())
         self.optimizers.set_step(step)
         picked = expert.select_views(step, self.scene.train, config.batch_size, self.sampler.generator)
-        views = [self.scene.train[i] for i in (self.sampler.next() if picked is None else picked)]
+        if picked is None:
+            picked = self.sampler.next()
+            expert.on_views(self.sampler.left)
+        views = [self.scene.train[i] for i in picked]
         splat_opts = self.splat_optimizers() if strategy else {}
         info: dict[str, Any] = {"renders": [], "views": []}
         if strategy:

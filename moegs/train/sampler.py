@@ -24,6 +24,9 @@ class ViewSampler:
             self.members.setdefault(int(group), []).append(index)
         self.generator = torch.Generator(device="cpu").manual_seed(seed)
         self.stacks: dict[int, list[int]] = {g: [] for g in self.members}
+        self.left = 0
+        """Views the first group's stack held before the last batch's first draw (refilled when empty):
+        the ``len(viewpoint_stack)`` of the originals' loops, which shrinks through an epoch."""
 
     def next(self) -> list[int]:
         """View indices of the next batch, group by group."""
@@ -35,6 +38,8 @@ class ViewSampler:
                         len(self.members[group]), generator=self.generator, device="cpu"
                     ).tolist()
                     self.stacks[group] = [self.members[group][i] for i in order]
+                if not batch:
+                    self.left = len(self.stacks[group])
                 batch.append(self.stacks[group].pop())
         return batch
 

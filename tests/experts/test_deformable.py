@@ -124,3 +124,27 @@ def test_presets_and_config_round_trip():
     assert key(real) == (10, None, True, 20_000)
     quick = DeformableConfig.from_preset("quick")
     assert from_dict(DeformableConfig, to_dict(quick)) == quick
+
+
+def test_ast_divides_by_the_views_left_in_the_epochs_stack(scene):
+    """``train.py:79-85`` takes ``1 / len(viewpoint_stack)`` before each pop: 1/n, 1/(n-1), ..., 1/1, then
+    1/n again after the refill; the loop passes the sampler's stack to the expert every step."""
+    from dataclasses import replace
+
+    from moegs.train.config import TrainConfig
+    from moegs.train.loop import TrainingRun
+
+    n = len(scene.train)
+    config = DeformableConfig(time_noise=True, warm_up=0, train=TrainConfig(iterations=n + 2))
+    expert = DeformableExpert.from_scene(scene, config)
+    assert expert.time_interval == 1 / n  # before any step: the whole stack
+    run = TrainingRun(expert, scene, config.train, None)
+    seen = []
+    expert.train()
+    for step in range(1, n + 3):
+        run.iteration(step)
+        seen.append(expert.time_interval)
+    assert seen == [1 / k for k in range(n, 0, -1)] + [1 / n, 1 / (n - 1)]
+    whole = DeformableExpert.from_scene(scene, replace(config, time_noise_over_left=False))
+    whole.on_views(3)
+    assert whole.time_interval == 1 / n  # the option keeps the whole stack
