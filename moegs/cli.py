@@ -93,6 +93,7 @@ def _load_kwargs(meta: dict) -> dict:
         recipe.get("background"),
         meta["train"].get("resolution_scale"),
         user_scale="train.resolution_scale" in (recipe.get("overrides") or {}),
+        loader_args=recipe.get("loader_args"),
     )
 
 

@@ -72,16 +72,19 @@ class Recipe:
     overrides: dict[str, Any]
     background: str
     config: Any = field(repr=False)
+    loader_args: dict[str, Any] = field(default_factory=dict)
 
     @property
     def load_kwargs(self) -> dict[str, Any]:
-        """``load_scene`` keyword arguments this run needs: the background, and the training resolution
-        (stand-ins are generated at their own preset's size: only a user's resolution applies to them)."""
+        """``load_scene`` keyword arguments this run needs: the background, the training resolution
+        (stand-ins are generated at their own preset's size: only a user's resolution applies to them) and
+        the original's loader arguments (``loader_args``)."""
         return scene_load_kwargs(
             self.scene,
             self.background,
             self.config.train.resolution_scale,
             user_scale="train.resolution_scale" in self.overrides,
+            loader_args=self.loader_args,
         )
 
     @property
@@ -94,6 +97,7 @@ class Recipe:
             ("world-frame rules off", self.frame_overrides),
             (f"{self.preset} reductions", self.reductions),
             ("user overrides", self.overrides),
+            ("loader arguments", self.loader_args),
         ):
             if values:
                 out.append(f"{label}: " + ", ".join(f"{k}={v!r}" for k, v in values.items()))
@@ -115,18 +119,26 @@ class Recipe:
             "reductions": _jsonable(self.reductions),
             "overrides": _jsonable(self.overrides),
             "background": self.background,
+            "loader_args": _jsonable(self.loader_args),
         }
 
 
 def scene_load_kwargs(
-    scene: str, background: str | None, resolution_scale: float | None, user_scale: bool
+    scene: str,
+    background: str | None,
+    resolution_scale: float | None,
+    user_scale: bool,
+    loader_args: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """``load_scene`` keyword arguments of a run: its ``background`` (if any) and its training
+    """``load_scene`` keyword arguments of a run: its ``background`` (if any), its training
     ``resolution_scale`` (if any), which a stand-in (generated at its own preset's size) takes only when
-    the user set it (``user_scale``)."""
+    the user set it (``user_scale``), and its recipe's ``loader_args`` (lists from a JSON record become
+    tuples)."""
     kwargs: dict[str, Any] = {"background": background} if background else {}
     if resolution_scale is not None and (not scene.startswith("synthetic:") or user_scale):
         kwargs["resolution_scale"] = resolution_scale
+    for name, value in (loader_args or {}).items():
+        kwargs[name] = tuple(value) if isinstance(value, list) else value
     return kwargs
 
 
@@ -200,6 +212,7 @@ def config_for(
     config = with_fields(config, reductions)
     user = dict(overrides or {})
     config = with_fields(config, user)
+    loader_args = {**cls.LOADER_ARGS.get(dataset, {}), **cls.LOADER_ARGS.get(key, {})} if real else {}
     return Recipe(
         expert=expert,
         scene=scene,
@@ -214,6 +227,7 @@ def config_for(
         overrides=user,
         background=cls.background_for(dataset),
         config=config,
+        loader_args=loader_args,
     )
 
 

@@ -129,6 +129,7 @@ class TrainedRun:
             recipe.get("background"),
             self.meta["train"].get("resolution_scale"),
             user_scale="train.resolution_scale" in (recipe.get("overrides") or {}),
+            loader_args=recipe.get("loader_args"),
         )
 
     def describe(self) -> str:

@@ -75,7 +75,8 @@ def load_trained_expert(ctx: Any, build: Task, scene: Any = None):
 
     folder = ctx.artifact(build)
     if scene is None:
-        scene = ctx.scene(build, recipe_of(ctx, build).background)
+        recipe = recipe_of(ctx, build)
+        scene = ctx.scene(build, recipe.background, **recipe.loader_args)
     expert, _state = load_trained(folder, scene, device=ctx.device)
     return expert
 
@@ -119,7 +120,7 @@ def train_build(ctx: Any, task: Task, recipe: Any, out: Any) -> dict[str, Any]:
     build's record."""
     from moegs.train.entry import train_recipe
 
-    scene = ctx.scene(task, recipe.background)
+    scene = ctx.scene(task, recipe.background, **recipe.loader_args)
     _, result = train_recipe(recipe, scene, out, device=ctx.device, progress=ctx.progress)
     return {
         "train_seconds": result["train_seconds"],

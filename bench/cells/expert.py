@@ -40,7 +40,8 @@ def build(task: Task, ctx: Any, out: Path) -> dict[str, Any]:
 def run(task: Task, ctx: Any) -> dict[str, Any]:
     build_task = artifacts(task)[0]
     expert = load_trained_expert(ctx, build_task)
-    scene = ctx.scene(task, recipe_of(ctx, build_task).background)
+    recipe = recipe_of(ctx, build_task)
+    scene = ctx.scene(task, recipe.background, **recipe.loader_args)  # the ground truth it trained on
     out = evaluate_model(ctx, expert, scene, [build_task])
     out["details"]["iterations"] = ctx.meta(build_task).get("iterations")
     return out

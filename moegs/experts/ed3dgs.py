@@ -348,6 +348,10 @@ class ED3DGSConfig(ExpertConfig):
     }
     BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "white"}
     """``white_background`` is forced on for every dataset (``arguments/__init__.py:54``, ``train.py:46``)."""
+    LOADER_ARGS: ClassVar[dict[str, dict[str, Any]]] = {
+        "n3v": {"resample": "lanczos"},  # scene/cameras.py:128 original_image.resize(img_wh, Image.LANCZOS)
+        "n3v:coffee_martini": {"exclude": ("cam13",)},  # README.md:43: remove cam13.mp4 and its pose
+    }
     SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
         # arguments/dynerf/flame_steak.py:4-5
         "n3v:flame_steak": {"strategy.grad_threshold": 2e-4},

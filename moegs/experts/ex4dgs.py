@@ -274,6 +274,9 @@ class Ex4DGSConfig(ExpertConfig):
     }
     BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "white"}
     """Evaluation on white (``render.py:131``); training draws a random background per iteration."""
+    LOADER_ARGS: ClassVar[dict[str, dict[str, Any]]] = {
+        "n3v": {"resample": "bilinear"},  # utils/general_utils.py:23 PILtoTorch(..., resample=2): bilinear
+    }
     SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
         # configs/techni/<Scene>.json: densification_interval, densify_until, extract_from_iter, lrs,
         # progressive_growing_steps, extracton_interval, extract_percentile, thresholds, static_reg;

@@ -206,6 +206,9 @@ class FourDGSConfig(StaticConfig):
     BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "white"}
     """``_white_background = True`` as a ``store_true`` flag: it cannot be switched off
     (``arguments/__init__.py``; ``train.py`` background)."""
+    LOADER_ARGS: ClassVar[dict[str, dict[str, Any]]] = {
+        "n3v": {"resample": "lanczos"},  # scene/neural_3D_dataset_NDC.py:371 img.resize(..., Image.LANCZOS)
+    }
     SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
         # kplanes temporal resolution (arguments/dnerf/<scene>.py:8, arguments/hypernerf/<scene>.py:7)
         "dnerf:lego": {"time_resolution": 25},

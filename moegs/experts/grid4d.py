@@ -190,6 +190,9 @@ class Grid4DConfig(StaticConfig):
     DEFAULT_PRESET: ClassVar[str] = "paper-n3v"
     BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "black"}
     """``_white_background = False`` (``arguments/__init__.py:56``); no config or README command sets it."""
+    LOADER_ARGS: ClassVar[dict[str, dict[str, Any]]] = {
+        "n3v": {"resample": "lanczos"},  # scene/neu3d.py:367 img.resize(self.img_wh, Image.LANCZOS)
+    }
     SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
         "dnerf:lego": {
             "grid_lr_scale": 250.0,  # arguments/dnerf/lego.py:23

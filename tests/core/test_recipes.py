@@ -368,3 +368,30 @@ def test_with_fields_rebuilds_nested_configs_once():
     changed = with_fields(config, {"coarse_iterations": 10, "strategy.coarse_iterations": 10})
     assert changed.coarse_iterations == changed.strategy.coarse_iterations == 10
     assert config.coarse_iterations == 3000  # the input is untouched
+
+
+def test_recipes_carry_the_originals_loader_arguments():
+    """Real N3V: E-D3DGS drops cam13 on coffee_martini (its README.md:43) and resizes with Lanczos, as do
+    4DGaussians and Grid4D; Ex4DGS bilinear; STG keeps the loader's bicubic. Stand-ins take none. The
+    arguments reach load_scene through the recipe and through a run's recorded config.json."""
+    from moegs.recipes import scene_load_kwargs
+
+    coffee = config_for("ed3dgs", "n3v:coffee_martini", "paper")
+    assert coffee.loader_args == {"resample": "lanczos", "exclude": ("cam13",)}
+    assert coffee.load_kwargs["exclude"] == ("cam13",) and coffee.load_kwargs["resample"] == "lanczos"
+    assert config_for("ed3dgs", "n3v:sear_steak", "quick").loader_args == {"resample": "lanczos"}
+    assert config_for("fourdgs", "n3v:sear_steak", "paper").loader_args == {"resample": "lanczos"}
+    assert config_for("grid4d", "n3v:sear_steak", "paper").loader_args == {"resample": "lanczos"}
+    assert config_for("ex4dgs", "n3v:sear_steak", "paper").loader_args == {"resample": "bilinear"}
+    assert config_for("stg", "n3v:sear_steak", "paper").loader_args == {}
+    assert config_for("ed3dgs", "synthetic:n3v_like", "quick").loader_args == {}
+    recorded = coffee.provenance()["loader_args"]
+    assert recorded == {"resample": "lanczos", "exclude": ["cam13"]}  # JSON: the tuple is a list
+    reloaded = scene_load_kwargs(coffee.scene, coffee.background, 0.5, False, loader_args=recorded)
+    assert reloaded == {
+        "background": "white",
+        "resolution_scale": 0.5,
+        "resample": "lanczos",
+        "exclude": ("cam13",),
+    }
+    assert "loader arguments: resample='lanczos', exclude=('cam13',)" in coffee.steps
