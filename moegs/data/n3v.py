@@ -48,6 +48,7 @@ from moegs.data._io import (
     normalised_time,
     points_bbox,
     read_colmap,
+    require_file,
     to_rgb8,
 )
 from moegs.data._video import FrameCache, VideoReader
@@ -124,6 +125,39 @@ def _camera_names(root: Path) -> list[str]:
     return sorted(names, key=lambda n: int(n[3:]))
 
 
+POINT_SOURCES = ("auto", "mvs40k", "mvs100k", "sparse", "frames")
+"""``load_n3v(points=...)``: ``auto`` the first cloud found (below); ``mvs40k`` 4DGaussians' and Grid4D's
+dense cloud of at most 40k points (``points3D_downsample2.ply``), ``mvs100k`` E-D3DGS's of at most 100k
+(``points3D_downsample.ply``), ``sparse`` the window's first frame's COLMAP points (Ex4DGS), ``frames``
+every frame's COLMAP points of the window, each tagged with its frame's time (STG,
+``dataset_readers.py:816-836``). A named source that is missing is an error."""
+
+
+def _named_points(
+    root: Path, points: str, window: tuple[int, int], duration: int, time_mode: str
+) -> PointCloud:
+    """The cloud ``points`` names (``POINT_SOURCES`` other than ``auto``)."""
+    files = {"mvs40k": "points3D_downsample2.ply", "mvs100k": "points3D_downsample.ply"}
+    if points in files:
+        return ply_points(require_file(root / files[points], f"N3V points={points!r}"))
+    frames = range(window[0], window[0] + 1 if points == "sparse" else window[1])
+    clouds, times = [], []
+    for j in frames:
+        sparse = root / f"colmap_{j}" / "sparse" / "0"
+        if not sparse.is_dir():
+            raise FileNotFoundError(f"N3V points={points!r}: expected COLMAP points in {sparse}")
+        clouds.append(colmap_points(read_colmap(sparse), sparse))
+        times.append(torch.full((len(clouds[-1]),), normalised_time(j, *window, duration, time_mode)))
+    if points == "sparse":
+        return clouds[0]
+    return PointCloud(
+        xyz=torch.cat([c.xyz for c in clouds]),
+        rgb=torch.cat([c.rgb for c in clouds]),
+        times=torch.cat(times),
+        source=f"COLMAP points of frames {window[0]}-{window[1] - 1}, each at its time (STG style)",
+    )
+
+
 def _points(
     root: Path, start: int, cameras: list[Camera], bounds: np.ndarray, n: int, seed: int
 ) -> PointCloud | None:
@@ -156,6 +190,7 @@ def load_n3v(
     seed: int = 0,
     resample: str = "bicubic",
     name: str | None = None,
+    points: str = "auto",
 ) -> Scene:
     """Load an N3V/DyNeRF scene.
 
@@ -172,6 +207,7 @@ def load_n3v(
         readahead: frames decoded after each cache miss; default the whole window if every camera's
             window fits in the budget, else 8.
         num_points: fallback random points when no COLMAP/PLY cloud is in the folder (0: none).
+        points: which initial cloud (``POINT_SOURCES``; each expert's original takes its own).
     """
     root = Path(root)
     pb_path = root / "poses_bounds.npy"
@@ -274,13 +310,19 @@ def load_n3v(
         raise ValueError(f"N3V: test cameras {test_cameras} not among {names}")
 
     train_cams = [cams[c] for c in names if c not in test_cameras]
-    points = _points(root, window[0], train_cams, pb[:, 15:], num_points, seed)
+    if points not in POINT_SOURCES:
+        raise ValueError(f"N3V points: expected one of {', '.join(POINT_SOURCES)}, got {points!r}")
+    if points == "auto":
+        cloud = _points(root, window[0], train_cams, pb[:, 15:], num_points, seed)
+    else:
+        cloud = _named_points(root, points, window, duration, time_mode)
     meta = {
         "frames": list(window),
         "duration": duration,
         "time_mode": time_mode,
         "test_cameras": list(test_cameras),
         "excluded": list(exclude),
+        "points": points,
         "readahead": ahead,
         "source": "frames" if any(isinstance(s, _FrameDir) for s in sources.values()) else "video",
         "bounds": {c: [float(x) for x in pb[i, 15:]] for i, c in enumerate(names)},
@@ -292,8 +334,8 @@ def load_n3v(
         train,
         test,
         cameras=train_cams,
-        points=points,
-        bbox=_bbox_from_bounds(train_cams, pb[:, 15:]) if points is None else None,
+        points=cloud,
+        bbox=_bbox_from_bounds(train_cams, pb[:, 15:]) if cloud is None else None,
         num_frames=window[1] - window[0],
         background=bg,
         multiview=True,

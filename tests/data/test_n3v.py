@@ -156,3 +156,26 @@ def test_load_decodes_no_frame(tmp_path, monkeypatch):
     assert len(scene.cache) == 0
     monkeypatch.setattr(VideoReader, "_decode", decode)
     assert scene.train[0].image().shape[-1] == 3 and len(scene.cache) > 0
+
+
+def test_each_experts_initial_cloud_by_name(tmp_path):
+    """``points=``: the dense clouds by file, the window's first frame's COLMAP points (Ex4DGS), or every
+    frame's points tagged with its frame's time (STG); a named source that is missing is an error."""
+    from moegs.data.synthetic.writers import write_ply
+
+    fx.write_n3v(tmp_path, cams=3, frames=6)
+    fx.write_technicolor_colmap(tmp_path, frames=(0, 6))  # colmap_<j>/sparse/0, two points at z = 3 + j
+    with pytest.raises(FileNotFoundError, match="points='mvs40k'.*points3D_downsample2.ply"):
+        load_n3v(tmp_path, frames=(2, 5), points="mvs40k")
+    write_ply(tmp_path / "points3D_downsample2.ply", torch.rand(5, 3), torch.rand(5, 3))
+    assert len(load_n3v(tmp_path, frames=(2, 5), points="mvs40k").points) == 5
+    sparse = load_n3v(tmp_path, frames=(2, 5), points="sparse").points
+    assert sparse.times is None and sorted(sparse.xyz[:, 2].tolist()) == pytest.approx([5.0, 6.0])
+    frames = load_n3v(tmp_path, frames=(2, 5), time_mode="local", points="frames")
+    cloud = frames.points
+    assert len(cloud) == 6 and cloud.times is not None
+    times = sorted({v.camera.time for v in frames.train})
+    assert sorted(set(cloud.times.tolist())) == pytest.approx(times)  # each point at its frame's time
+    assert load_n3v(tmp_path, frames=(2, 5), points="auto").points is not None
+    with pytest.raises(ValueError, match="N3V points: expected one of auto, mvs40k"):
+        load_n3v(tmp_path, frames=(2, 5), points="dense")
