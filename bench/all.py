@@ -323,6 +323,7 @@ def write_outputs(
         expert_rows,
         noise_for,
         pair_noise_for,
+        pruning_rows,
         routing_rows,
         row_noise_for,
         run_noise,
@@ -363,6 +364,7 @@ def write_outputs(
         "noise": noise,
         "experts": expert_rows(plan, workspace),
         "routing": routing_rows(plan, workspace),
+        "pruning": pruning_rows(plan, workspace),
         "presets": comparisons,
         "compute": compute_rows(plan, workspace),
     }

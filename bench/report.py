@@ -409,7 +409,31 @@ def signals_markdown(signals: dict[str, Any]) -> list[str]:
                 f"| {r['table']} | {r['row']} | {r['scene']} | {', '.join(r['experts'])} | "
                 f"{_num(r['coherence'], 3)} | {share(r['dynamic_share'])} | {share(r['static_share'])} |"
             )
-    return lines + [""]
+    return lines + pruning_markdown(signals.get("pruning") or []) + [""]
+
+
+def pruning_markdown(rows: list[dict[str, Any]]) -> list[str]:
+    """The pruned MoE-GS cells: Gaussians before and after, the share removed, and the paper's memory
+    reduction of the same row (against the largest memory of its table)."""
+    if not rows:
+        return []
+    lines = [
+        "",
+        "Pruning (gate-aware, `moegs.moe.prune`): the share of the experts' Gaussians each pruned MoE-GS "
+        "cell removed, while the router trained or once after; the paper reports memory, whose share "
+        "removed is given against its table's largest:",
+        "",
+        "| table | row | scene | seed | when | Gaussians | removed | paper: memory removed |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        paper = r["paper_memory_removed"]
+        lines.append(
+            f"| {r['table']} | {r['row']} | {r['scene']} | {r['seed']} | {r['when']} | "
+            f"{r['before']} -> {r['after']} | {100 * r['removed']:.1f}% | "
+            f"{'-' if paper is None else f'{100 * paper:.0f}%'} |"
+        )
+    return lines
 
 
 def convergence_studies(base: Path) -> list[tuple[Path, Path]]:
@@ -733,9 +757,10 @@ def write_report(
     device: str = "cpu",
 ) -> dict[str, Path]:
     """Write REPORT.md, REPORT.html and summary.json into ``out_dir``; ``signals`` (``bench.signals``:
-    ``noise``, ``experts``, ``routing``, ``compute``) go into the report and into summary.json as top-level
-    keys; ``cells``: the plan's ``identity()``, in the header; ``history``: the workspace's earlier runs
-    of that plan (``bench.runlog``), in the header; ``device``: the run's device (``bench.all``)."""
+    ``noise``, ``experts``, ``routing``, ``pruning``, ``compute``) go into the report and into summary.json
+    as top-level keys; ``cells``: the plan's ``identity()``, in the header; ``history``: the workspace's
+    earlier runs of that plan (``bench.runlog``), in the header; ``device``: the run's device
+    (``bench.all``)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     header = _header(preset, run, cells, history, device)
     signals = signals or {}
@@ -748,6 +773,7 @@ def write_report(
         "noise": signals.get("noise", {}),
         "experts": signals.get("experts", []),
         "routing": signals.get("routing", []),
+        "pruning": signals.get("pruning", []),
         "compute": signals.get("compute", {}),
         "more_seeds": more_seeds(reports, preset.name),
         "specs": [_relative(asdict(r), out_dir) for r in reports],

@@ -6,6 +6,8 @@
   budget);
 * ``routing_rows``: every MoE-GS cell's routing signal (``moegs.moe.winner_coherence`` of the winner map,
   and the share of dynamic / static pixels each expert wins);
+* ``pruning_rows``: every pruned MoE-GS cell's share of Gaussians removed (each seed), beside the paper's
+  memory reduction for that row (against the largest memory of its table);
 * ``seed_noise``: the seed-to-seed spread (max - min over seeds) per scene and row, of the stability runs
   and of real-scene tables trained with several seeds; ``noise_for`` the spread a table's claims are
   judged against (its scenes' own, or the stand-ins' where a scene has none). Claims whose margin is
@@ -120,6 +122,41 @@ def routing_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
                 "experts": list(task.params["experts"]),
                 "router": task.params.get("router", "vapr"),
                 **routing,
+            }
+        )
+    return rows
+
+
+def pruning_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
+    """``[{"table", "row", "scene", "seed", "when", "before", "after", "removed", "paper_memory_removed"}]``
+    of the MoE-GS cells that pruned; ``paper_memory_removed`` is ``1 - row / largest`` of the paper table's
+    Memory column (None where it has none)."""
+    from bench.paper import list_paper_tables, load_paper_table
+
+    rows = []
+    for sp, slot, result in _ok_results(plan, workspace, "moe", once=False):
+        pruning = result.get("details", {}).get("pruning")
+        if not pruning:
+            continue
+        memory = {}
+        if sp.spec.id in list_paper_tables():
+            memory = {
+                v["row"]: v["value"]
+                for v in load_paper_table(sp.spec.id).values
+                if v["metric"] == "Memory" and isinstance(v["value"], int | float)
+            }
+        paper = 1.0 - memory[slot.row] / max(memory.values()) if slot.row in memory else None
+        rows.append(
+            {
+                "table": sp.spec.id,
+                "row": slot.row,
+                "scene": slot.task.scene,
+                "seed": slot.task.seed,
+                "when": pruning.get("when", "after training"),
+                "before": sum(pruning["before"]),
+                "after": sum(pruning["after"]),
+                "removed": pruning["removed_fraction"],
+                "paper_memory_removed": paper,
             }
         )
     return rows

@@ -2,7 +2,9 @@
 
 Params: ``experts`` (registry names), ``router`` (``vapr`` volume-aware pixel router | ``pixel`` |
 ``volume``), optional ``single_pass`` (default True; False renders each expert separately),
-``prune`` (``"gate"``: gate-aware pruning with the library's default threshold, or a ratio in (0, 1)),
+``prune`` (``"train"``: the router trains with gate-aware pruning on the authors' schedule, moved to the
+run's length, ``RouterConfig.with_progressive_pruning``; ``"gate"``: the trained model is pruned once
+with the library's default threshold; or a ratio in (0, 1), once),
 ``budget`` (experts trained with that fraction of their iterations, Table XVIII), ``convention``
 (``code``, default: the authors' code conventions that produced the paper's numbers; ``paper``: the
 paper's wording, an extra row of Table VI). The router is trained and evaluated on the experts' shared
@@ -18,6 +20,7 @@ Library API this kind calls (until it exists, cells report "not implemented yet:
   ``render(camera, background, single_pass=True)`` returns an object with ``image [H, W, 3]``,
   ``gates [K, H, W]`` and ``expert_images [K, H, W, 3]``.
 * ``moegs.moe.prune(model, scene, ratio=None) -> dict`` (gate-aware pruning in place).
+* ``RouterConfig.with_progressive_pruning()``; ``load_moe``'s model has ``kept`` after such a router.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from bench.cells._lib import expert_task, load_trained_expert, shared_background
 from bench.tasks import Task
 
 ROUTERS = ("vapr", "pixel", "volume")
+PRUNE_WHILE_TRAINING = "train"
 ROUTER_API = ("moegs.moe:router_config_for", "moegs.moe:train_router", "moegs.moe:load_moe")
 
 
@@ -55,13 +59,17 @@ def router_task(
     router: str = "vapr",
     budget: float | None = None,
     convention: str = "code",
+    prune: Any = None,
 ) -> Task:
-    """Build task of a trained router over ``experts`` (and the experts' budget and dataset configs)."""
+    """Build task of a trained router over ``experts`` (and the experts' budget and dataset configs); a
+    router pruning while it trains (``prune="train"``) is a build of its own."""
     params: dict[str, Any] = {
         "experts": list(experts),
         "router": router,
         "dataset": task.params.get("dataset"),
     }
+    if prune == PRUNE_WHILE_TRAINING:
+        params["prune"] = PRUNE_WHILE_TRAINING
     if budget is not None and float(budget) != 1.0:
         params["budget"] = float(budget)
     if convention != "code":
@@ -75,7 +83,14 @@ def router_task(
 def artifacts(task: Task) -> list[Task]:
     p = task.params
     return [
-        router_task(task, p["experts"], p.get("router", "vapr"), p.get("budget"), p.get("convention", "code"))
+        router_task(
+            task,
+            p["experts"],
+            p.get("router", "vapr"),
+            p.get("budget"),
+            p.get("convention", "code"),
+            p.get("prune"),
+        )
     ]
 
 
@@ -96,13 +111,14 @@ def router_config(ctx: Any, task: Task):
         scene=task.scene,
         dataset=task.params.get("dataset"),
     )
-    return replace(
+    cfg = replace(
         cfg,
         variant=task.params["router"],
         seed=task.seed,
         iterations=ctx.preset.steps(cfg.iterations, ctx.preset.router_steps),
         checkpoint_every=ctx.preset.checkpoint_every,
     )
+    return cfg.with_progressive_pruning() if task.params.get("prune") == PRUNE_WHILE_TRAINING else cfg
 
 
 def moe_scene(ctx: Any, build_task: Task):
@@ -155,10 +171,21 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     model = load_model(ctx, build_task)
     details: dict[str, Any] = {}
     prune = task.params.get("prune")
-    if prune is not None:
+    if prune == PRUNE_WHILE_TRAINING:
+        before = [int(m.numel()) for m in model.kept] if model.kept is not None else None
+        after = [e.num_gaussians for e in model.experts]
+        details["pruning"] = {
+            "when": "training",
+            "before": before or after,
+            "after": after,
+            "removed_fraction": 1.0 - sum(after) / max(sum(before or after), 1),
+            "threshold": router_config(ctx, build_task).prune_threshold,
+        }
+    elif prune is not None:
         from moegs.moe import prune as gate_prune
 
-        details["pruning"] = gate_prune(model, scene, ratio=None if prune == "gate" else float(prune))
+        ratio = None if prune == "gate" else float(prune)
+        details["pruning"] = {"when": "after training", **gate_prune(model, scene, ratio=ratio)}
     native = ctx.native_scene(scene)
     scene = ctx.on_device(scene)
     single_pass = bool(task.params.get("single_pass", True))

@@ -33,6 +33,8 @@ ROUTERS = ("vapr", "pixel", "volume")
 """Router variants: volume-aware pixel router (the paper's), pixel router, volume router (ablation)."""
 QUICK_ROUTER_ITERATIONS = 300
 PAPER_ROUTER_ITERATIONS = 5000
+CODE_PRUNE_EVERY = 500
+"""``prune_weight_interval`` and ``prune_from_iter`` (MoE-GS-studio ``arguments/__init__.py``)."""
 
 
 @dataclass
@@ -89,6 +91,16 @@ class RouterConfig(Presets):
     lr_phi: float = 0.05
     """Rate of Phi (and of the pixel router's MLP), constant."""
 
+    # -- progressive gate-aware pruning (paper: "progressively pruned"; the code's unused schedule) ------
+    prune_every: int = 0
+    """Prune while training every this many iterations (code ``prune_weight_interval`` 500,
+    ``arguments/__init__.py``); 0: none (``moegs.moe.prune.prune`` prunes a trained model once)."""
+    prune_from: int = 500
+    """First pruning iteration (code ``prune_from_iter``)."""
+    prune_threshold: float = 1e-5
+    """Remove Gaussians whose loss-gradient score is below this (code ``configs/N3V/*.json``
+    ``prune_weight_threshold``; ``moegs.moe.prune.WeightGradients``)."""
+
     # -- run ------------------------------------------------------------------------------------------
     single_pass: bool = True
     """Render the experts and their weight maps in one pass (``rasterize_multi``) while training."""
@@ -109,6 +121,17 @@ class RouterConfig(Presets):
         for name in ("train_temperature", "eval_temperature"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"RouterConfig.{name} must be positive, got {getattr(self, name)}")
+        if self.prune_every < 0 or self.prune_from < 1:
+            raise ValueError(
+                f"RouterConfig.prune_every must be >= 0 and prune_from >= 1, got {self.prune_every}, "
+                f"{self.prune_from}"
+            )
+
+    def with_progressive_pruning(self) -> RouterConfig:
+        """This config pruning on the code's schedule (every 500 of 5000 iterations from 500) moved to
+        the same fractions of its own run."""
+        every = max(round(CODE_PRUNE_EVERY * self.iterations / PAPER_ROUTER_ITERATIONS), 1)
+        return replace(self, prune_every=every, prune_from=every)
 
     @property
     def decay_steps(self) -> int:

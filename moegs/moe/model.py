@@ -33,6 +33,8 @@ class MoEGS(nn.Module):
         router: the router of ``config.variant`` (the only trainable part).
         config: the ``RouterConfig``.
         responsibilities: lifted gate responsibilities per expert ``[N_k]`` (``moegs.moe.lift``), or None.
+        kept: after gate-aware pruning, which of each expert's trained Gaussians remain (bool, one
+            ``[N_k trained]`` per expert), or None (``moegs.moe.prune``).
     """
 
     def __init__(self, experts: Sequence[Expert], config: RouterConfig) -> None:
@@ -44,6 +46,7 @@ class MoEGS(nn.Module):
         self.experts.requires_grad_(False)
         self.router = build_router(experts, config)
         self.responsibilities: list[Tensor] | None = None
+        self.kept: list[Tensor] | None = None
         self.train(False)
 
     def train(self, mode: bool = True) -> MoEGS:
@@ -101,10 +104,26 @@ class MoEGS(nn.Module):
             "format": FORMAT,
             "config": to_dict(self.config),
             "experts": [e.name for e in self.experts],
-            "num_gaussians": [e.num_gaussians for e in self.experts],
+            "num_gaussians": trained_counts(self),
             "router": dict(self.router.state_dict()),
             "responsibilities": self.responsibilities,
+            "kept": self.kept,
         }
+
+
+def trained_counts(model: MoEGS) -> list[int]:
+    """Each expert's number of Gaussians as trained (before any gate-aware pruning)."""
+    if model.kept is None:
+        return [e.num_gaussians for e in model.experts]
+    return [int(mask.numel()) for mask in model.kept]
+
+
+def apply_kept(experts: Sequence[Expert], kept: Sequence[Tensor] | None) -> None:
+    """Prune the freshly loaded ``experts`` in place to a pruned router's ``kept`` rows (None: nothing)."""
+    if kept is None:
+        return
+    for expert, mask in zip(experts, kept, strict=True):
+        expert.keep_gaussians(mask.to(device=experts_device(experts), dtype=torch.bool))
 
 
 def _check_experts(state: dict, experts: Sequence[Expert], path: Path) -> None:
@@ -136,13 +155,15 @@ def read_router(path: str | Path) -> dict[str, Any]:
 
 def load_moe(path: str | Path, experts: Sequence[Expert], scene: Scene | None = None) -> MoEGS:
     """The trained MoE-GS model of ``path`` (a ``train_router`` folder or its checkpoint) over ``experts``
-    (the same trained experts, in the same order); with ``scene``, a router trained on another scene is
-    refused. Returned in eval mode."""
+    (the same trained experts, in the same order; a router pruned while training prunes them in place to
+    its rows); with ``scene``, a router trained on another scene is refused. Returned in eval mode."""
     state = read_router(path)
     _check_experts(state, experts, Path(path))
     if scene is not None:
         scene.check_identity(state.get("scene"), path)
+    apply_kept(experts, state.get("kept"))
     model = MoEGS(experts, from_dict(RouterConfig, state["config"]))
+    model.kept = state.get("kept")
     model.router.load_state_dict(state["router"])
     resp = state.get("responsibilities")
     model.responsibilities = None if resp is None else [r.to(model.device) for r in resp]

@@ -7,6 +7,7 @@ Per 1-based iteration (one training view per step, shuffled over all cameras and
     out = model.render(view.camera)           # experts + weight maps in one pass, router, blend
     loss = (1 - 0.2) L1(out.image, gt) + 0.2 (1 - SSIM)
     backward; RAdam step                      # only router parameters have gradients
+    every prune_every steps (if set): gate-aware pruning of experts and router (``moegs.moe.prune``)
 
 Example::
 
@@ -32,7 +33,8 @@ from moegs.experts.base import Expert, splat_inputs_bytes
 from moegs.io import save_checkpoint, to_dict, write_json
 from moegs.io.config import config_changes
 from moegs.moe.config import RouterConfig
-from moegs.moe.model import ROUTER_CHECKPOINT, MoEGS, _check_experts, read_router, winner_share
+from moegs.moe.model import ROUTER_CHECKPOINT, MoEGS, _check_experts, apply_kept, read_router, winner_share
+from moegs.moe.prune import WeightGradients, keep_gaussians
 from moegs.train.evaluate import eval_views, evaluate_renderer
 from moegs.train.losses import photometric
 from moegs.train.optim import Optimizers
@@ -115,22 +117,36 @@ class LossHistory:
 
 
 def router_step(
-    model: MoEGS, view: View, background, frozen: ImageCache, optimizers: Optimizers, step: int
+    model: MoEGS,
+    view: View,
+    background,
+    frozen: ImageCache,
+    optimizers: Optimizers,
+    step: int,
+    gradients: WeightGradients | None = None,
 ) -> Tensor:
     """One router iteration on ``view`` (scene placed on the model's device): render, loss, backward,
-    optimiser step. Returns the loss, detached and not read back."""
+    (``gradients`` add theirs), optimiser step. Returns the loss, detached and not read back."""
     optimizers.set_step(step)
     inputs = model.expert_inputs(view.camera, background, frozen)
     rendered = model.render(view.camera, background, inputs=inputs)
     loss = photometric(rendered.image, view.image(), model.config.lambda_dssim)
     loss.backward()
+    if gradients is not None:
+        gradients.add(model)
     optimizers.step()
     optimizers.zero_grad()
     return loss.detach()
 
 
 def _state(
-    model: MoEGS, scene: Scene, step: int, optimizers: Optimizers, sampler: ViewSampler, history: LossHistory
+    model: MoEGS,
+    scene: Scene,
+    step: int,
+    optimizers: Optimizers,
+    sampler: ViewSampler,
+    history: LossHistory,
+    gradients: WeightGradients | None,
 ):
     return {
         **model.checkpoint_state(),
@@ -140,7 +156,17 @@ def _state(
         "sampler": sampler.state_dict(),
         "rng": {"torch": torch.get_rng_state()},
         "history": list(history.read()),
+        "weight_gradients": None if gradients is None else gradients.state_dict(),
     }
+
+
+def prune_step(config: RouterConfig, step: int) -> bool:
+    """Whether router iteration ``step`` ends with a pruning (never the last)."""
+    return (
+        bool(config.prune_every)
+        and config.prune_from <= step < config.iterations
+        and ((step - config.prune_from) % config.prune_every == 0)
+    )
 
 
 def train_router(
@@ -171,22 +197,28 @@ def train_router(
 
     Returns:
         ``{"router", "experts", "scene", "stand_in", "completed", "step", "iterations", "train_seconds",
-        "final_loss", "resumed_from", "test" (``evaluate_moe``; None when stopped early)}``.
+        "final_loss", "resumed_from", "test" (``evaluate_moe``; None when stopped early)}``, and
+        "pruned_fraction" (of the experts' Gaussians) when ``config.prune_every`` pruned. The experts are
+        pruned in place then (and on a resume of such a run).
     """
     config = config or RouterConfig.from_preset("quick")
+    out = Path(out_dir) if out_dir is not None else None
+    ckpt = out / ROUTER_CHECKPOINT if out is not None else None
+    state = read_router(ckpt) if resume and ckpt is not None and ckpt.is_file() else None
+    if state is not None:  # a run pruned while training goes on from its pruned experts
+        _check_experts(state, experts, ckpt)
+        apply_kept(experts, state.get("kept"))
     torch.manual_seed(config.seed)
     model = MoEGS(experts, config)
+    model.kept = None if state is None else state.get("kept")
     scene = scene.to(model.device)
     frozen = ImageCache(max_bytes=inputs_cache_bytes, nbytes=splat_inputs_bytes)
     optimizers = Optimizers(router_param_groups(model))
     sampler = ViewSampler([0] * len(scene.train), 1, config.seed)
-    out = Path(out_dir) if out_dir is not None else None
-    ckpt = out / ROUTER_CHECKPOINT if out is not None else None
+    gradients = WeightGradients(model) if config.prune_every else None
     with stop_requests(out is not None) as stop:  # SIGINT/SIGTERM: checkpoint, then stop
         done, history, resumed_from = 0, LossHistory([]), None
-        if resume and ckpt is not None and ckpt.is_file():
-            state = read_router(ckpt)
-            _check_experts(state, experts, ckpt)
+        if state is not None:
             scene.check_identity(state.get("scene"), ckpt, tuple(scene.identity()))
             changed = config_changes(state["config"], to_dict(config), ("checkpoint_every",))
             if changed:
@@ -200,6 +232,8 @@ def train_router(
             torch.set_rng_state(state["rng"]["torch"])
             done = resumed_from = state["step"]
             history = LossHistory(list(state["history"]))
+            if gradients is not None:
+                gradients.load_state_dict(state["weight_gradients"])
         if out is not None:
             write_json(
                 out / "config.json",
@@ -231,21 +265,26 @@ def train_router(
             start = time.perf_counter()
             view = scene.train[sampler.next()[0]]
             try:
-                loss = router_step(model, view, scene.background, frozen, optimizers, step)
+                loss = router_step(model, view, scene.background, frozen, optimizers, step, gradients)
             except FloatingPointError as err:  # the rasterizer names a non-finite input: an earlier NaN loss?
                 history.read()
                 raise FloatingPointError(f"router step {step}: view {view.key}: {err}") from err
             history.add(step, view, loss)
             done = step
+            if gradients is not None and prune_step(config, step):
+                keep = gradients.prune_masks(config.prune_threshold)
+                keep_gaussians(model, keep, optimizers)
+                gradients.restart(keep)
+                frozen = ImageCache(max_bytes=inputs_cache_bytes, nbytes=splat_inputs_bytes)
             seconds += time.perf_counter() - start
             if step % LOG_EVERY == 0:
                 bar.set_postfix(loss=f"{history.read()[-1]:.4f}")
             if ckpt is not None and config.checkpoint_every and step % config.checkpoint_every == 0:
-                save_checkpoint(ckpt, _state(model, scene, step, optimizers, sampler, history))
+                save_checkpoint(ckpt, _state(model, scene, step, optimizers, sampler, history, gradients))
         bar.close()
         history.read()
         if ckpt is not None:
-            save_checkpoint(ckpt, _state(model, scene, done, optimizers, sampler, history))
+            save_checkpoint(ckpt, _state(model, scene, done, optimizers, sampler, history, gradients))
 
     raise_if_stopped(stop, done, config.iterations, ckpt)
 
@@ -267,6 +306,9 @@ def train_router(
         "resumed_from": resumed_from,
         "test": test,
     }
+    if model.kept is not None:
+        trained = sum(int(m.numel()) for m in model.kept)
+        result["pruned_fraction"] = 1.0 - model.num_gaussians / max(trained, 1)
     if out is not None:
         write_json(out / "metrics.json", result)
     return result

@@ -89,6 +89,24 @@ class Optimizers:
         for opt in self.optimizers.values():
             opt.zero_grad(set_to_none=True)
 
+    @torch.no_grad()
+    def keep_rows(self, old: nn.Parameter, new: nn.Parameter, keep: torch.Tensor) -> None:
+        """Put ``new`` (``old``'s rows where ``keep [N]``) in ``old``'s place in the optimiser holding it,
+        with the moments of those rows (pruning a parameter while training)."""
+        for opt in self.optimizers.values():
+            for group in opt.param_groups:
+                for i, param in enumerate(group["params"]):
+                    if param is old:
+                        group["params"][i] = new
+                        state = opt.state.pop(old, None)
+                        if state is not None:
+                            opt.state[new] = {
+                                k: v[keep] if torch.is_tensor(v) and v.ndim > 0 and len(v) == len(keep) else v
+                                for k, v in state.items()
+                            }
+                        return
+        raise ValueError("Optimizers.keep_rows: the parameter is in no optimiser")
+
     def state_dict(self) -> dict:
         return {name: opt.state_dict() for name, opt in self.optimizers.items()}
 

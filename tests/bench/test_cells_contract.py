@@ -60,10 +60,30 @@ def test_moe_cell(ctx):
     assert m["psnr"] >= min(experts.values()), (m["psnr"], experts)
     assert m["psnr_dynamic"] > 5 and m["psnr_static"] > 5  # D-NeRF regions: object alpha vs background
     assert out["details"]["pruning"]["ratio"] == 0.55 and out["details"]["single_pass"] is False
+    assert out["details"]["pruning"]["when"] == "after training"
     routing = out["details"]["routing"]
     assert 0.0 <= routing["coherence"] <= 1.0 and routing["views"] == ctx.preset.test_views
     for region in ("dynamic_share", "static_share"):
         assert len(routing[region]) == 2 and sum(routing[region]) == pytest.approx(1.0)
+
+
+def test_moe_cell_pruning_while_the_router_trains(ctx):
+    """``prune="train"``: its own router build, pruned on the authors' schedule moved to the run; the
+    cell reports the Gaussians before (as trained) and after."""
+    from bench.cells.moe import artifacts, router_config
+
+    task = _task("moe", {"experts": EXPERTS, "router": "vapr", "prune": "train"})
+    build = artifacts(task)[0]
+    assert (
+        build.params["prune"] == "train" and build.key != artifacts(_task("moe", {"experts": EXPERTS}))[0].key
+    )
+    config = router_config(ctx, build)
+    assert config.prune_every == config.prune_from == max(round(500 * config.iterations / 5000), 1)
+    out = _run(ctx, "moe", {"experts": EXPERTS, "router": "vapr", "prune": "train"})
+    pruning = out["details"]["pruning"]
+    assert pruning["when"] == "training" and len(pruning["before"]) == len(pruning["after"]) == 2
+    assert all(a <= b for a, b in zip(pruning["after"], pruning["before"], strict=True))
+    assert pruning["removed_fraction"] == pytest.approx(1 - sum(pruning["after"]) / sum(pruning["before"]))
 
 
 def test_gates_cell(ctx):

@@ -13,7 +13,7 @@ from helpers.cells import write_ok_result
 from bench.plan import make_plan
 from bench.presets import get_preset
 from bench.registry import get_spec
-from bench.signals import compute_rows, expert_rows, routing_rows, run_noise, seed_noise
+from bench.signals import compute_rows, expert_rows, pruning_rows, routing_rows, run_noise, seed_noise
 from bench.store import Workspace
 
 QUICK = get_preset("quick")
@@ -72,6 +72,37 @@ def test_routing_rows_are_of_seed_zero(tmp_path):
         write_ok_result(ws, slot.task, {"details": {"routing": routing}}, psnr=25.0)
     (row,) = routing_rows(plan, ws)
     assert row["table"] == "tab09" and row["row"] == "MoE-GS (N=3)" and row["coherence"] == pytest.approx(0.1)
+
+
+def test_pruning_rows_stand_beside_the_papers_memory_reduction(tmp_path):
+    """Table VII's pruned rows: our share of Gaussians removed; the paper's memory 747 -> 270 MB."""
+    from bench.report import pruning_markdown
+
+    plan = make_plan(["tab07"], QUICK)
+    ws = Workspace(tmp_path)
+    for slot in plan.specs[0].slots:
+        details = {}
+        if slot.task is not None and slot.task.params.get("prune"):
+            details = {
+                "pruning": {
+                    "when": "training",
+                    "before": [60, 40],
+                    "after": [30, 20],
+                    "removed_fraction": 0.5,
+                }
+            }
+        if slot.task is not None:
+            write_ok_result(ws, slot.task, {"details": details}, psnr=25.0)
+    rows = pruning_rows(plan, ws)  # every seed Table VII trains at quick
+    assert sorted(r["row"] for r in rows) == sorted(
+        ["MoE-GS (N=3)", "w/o Single-Pass"] * QUICK.table_seeds["tab07"]
+    )
+    full = next(r for r in rows if r["row"] == "MoE-GS (N=3)" and r["seed"] == 0)
+    assert (full["before"], full["after"], full["removed"]) == (100, 50, 0.5)
+    assert full["paper_memory_removed"] == pytest.approx(1 - 270 / 747)
+    assert "| tab07 | MoE-GS (N=3) | synthetic:n3v_like | 0 | training | 100 -> 50 | 50.0% | 64% |" in (
+        pruning_markdown(rows)
+    )
 
 
 def test_a_build_shared_by_cells_costs_its_minutes_once(tmp_path):
