@@ -143,7 +143,8 @@ def with_fields(config: Any, changes: Mapping[str, Any]) -> Any:
     """A copy of the dataclass ``config`` with dotted fields replaced (``"strategy.densify_every"``).
 
     Nested dataclasses are rebuilt bottom-up with ``dataclasses.replace``, so ``__post_init__`` checks
-    see the final values of every level at once. Unknown names raise ``KeyError`` naming the valid ones.
+    see the final values of every level at once. A list given for a tuple field becomes a tuple (values
+    read back from JSON). Unknown names raise ``KeyError`` naming the valid ones.
     """
     if not changes:
         return config
@@ -158,6 +159,8 @@ def with_fields(config: Any, changes: Mapping[str, Any]) -> Any:
             )
         if rest:
             nested.setdefault(head, {})[rest] = value
+        elif isinstance(value, list) and isinstance(getattr(config, head), tuple):
+            top[head] = tuple(value)
         else:
             top[head] = value
     for head, sub in nested.items():

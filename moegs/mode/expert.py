@@ -16,15 +16,19 @@ and rotation only), one gate for all mixed attributes (paper) or one per attribu
 of the scores before the softmax (code only), control points (code configs: 3). Quaternions are mixed as
 the experts output them before normalisation, then normalised (code). The paper's numbers come from the
 code, so the recipes (``moegs.recipes``) use the ``code`` / ``quick`` presets; ``paper`` / ``quick-paper``
-are the wording variants. Members take their recipe for the scene's dataset. Regularisers: the base's
-only (the code adds no Grid4D or E-D3DGS term). Training: the base's pipeline (stages, densification,
-loss); background white (``arguments_MoDE/__init__.py``).
+are the wording variants. Members take their ``paper`` recipe for the scene's dataset with the MoDE
+code's own member settings on top (``CODE_MEMBER_FIELDS``: its Grid4D is Grid4D's D-NeRF geometry with one
+hidden layer on every dataset, its E-D3DGS a 64-wide net without a warm-up), then, at ``quick``, the
+member's reductions over the MoDE run's length. Regularisers: the base's only (the code adds no Grid4D or
+E-D3DGS term). Training: the base's pipeline (stages, densification, loss); background white
+(``arguments_MoDE/__init__.py``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from copy import deepcopy
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import torch
@@ -44,6 +48,50 @@ CANONICAL_EXPERTS = ("fourdgs", "grid4d", "ed3dgs")
 MIXABLE = ("means", "quats", "scales")
 GATE_KEY = "gate_control"
 """Per-Gaussian spline control weights ``[N, N_w, G]`` in the shared ``splats``."""
+CODE_ITERATIONS = 3000 + 30_000
+"""The code's run: 4DGaussians' coarse stage then its fine stage (``OptimizationParams``)."""
+CODE_MEMBER_FIELDS: dict[str, dict[str, Any]] = {
+    # MoE-GS-studio @b1e91217 arguments_MoDE/__init__.py: ModelParams.grid_args (:64-78) and network_args
+    # (:79-83), passed to Grid4D by train_hash.py; no MoDE config overrides them, so N3V runs with
+    # Grid4D's D-NeRF geometry (bound 1.6) and one hidden layer.
+    "grid4d": {
+        "spatial_levels": 16,
+        "spatial_level_dim": 2,
+        "spatial_base": 16,
+        "spatial_desired": 2048,
+        "spatial_log2_size": 19,
+        "temporal_levels": 32,
+        "temporal_level_dim": 2,
+        "temporal_base": (8, 8, 8),
+        "temporal_desired": (32, 32, 16),
+        "temporal_log2_size": 19,
+        "bound": 1.6,
+        "depth": 1,
+        "width": 256,
+        "directional": True,
+        "scale_xyz": 1.0,  # ModelParams.scale_xyz (:84)
+        "grid_lr_scale": 50.0,  # OptimizationParams.grid_lr_scale
+        "network_lr_scale": 5.0,  # OptimizationParams.network_lr_scale
+        "deform_lr_max_steps": 45_000,  # OptimizationParams.deform_lr_max_steps
+    },
+    # ModelEmbParams (:145-165) and OptimizationParams' embnet_* rates, passed to E-D3DGS by train_emb.py.
+    "ed3dgs": {
+        "width": 64,  # emb_net_width
+        "depth": 1,  # emb_defor_depth
+        "min_embeddings": 30,
+        "max_embeddings": 150,
+        "embedding_dim": 32,  # emb_gaussian_embedding_dim
+        "temporal_dim": 256,  # emb_temporal_embedding_dim
+        "deform": ("means", "scales", "quats", "sh"),  # emb_no_do=True: opacity not deformed
+        "coarse_min_embeddings": False,  # emb_use_coarse_temporal_embedding=False
+        "coarse_to_fine_until": 20_000,  # emb_c2f_temporal_iter
+        "deform_from": 0,  # emb_deform_from_iter
+        "use_anneal": True,
+        "zero_temporal": False,
+        "deformation_lr_max_steps": 60_000,  # embnet_lr_max_steps
+    },
+}
+"""Settings the MoDE code gives its members regardless of dataset (member -> dotted field -> value)."""
 
 
 @dataclass
@@ -55,6 +103,8 @@ class MoDEConfig(ExpertConfig):
     member_preset: str = "paper"
     """Recipe preset (``moegs.recipes``) of every member on the scene's dataset (``paper`` or ``quick``);
     each member's ``train`` is replaced by this config's."""
+    member_fields: dict[str, dict[str, Any]] = field(default_factory=lambda: deepcopy(CODE_MEMBER_FIELDS))
+    """Member -> fields set on its ``paper`` recipe before any ``quick`` reduction (default: the code's)."""
     control_points: int = 3
     """Spline control points N_w (code default 18; the MoDE configs use 3, coffee_martini 5)."""
     top_k: int = 2
@@ -111,7 +161,7 @@ class MoDEConfig(ExpertConfig):
 
         def paper() -> MoDEConfig:
             base = get_expert_class("fourdgs").config_class.from_preset("paper-n3v").train
-            return cls(train=replace(base, iterations=3000 + 30_000, batch_size=4))
+            return cls(train=replace(base, iterations=CODE_ITERATIONS, batch_size=4))
 
         def code() -> MoDEConfig:
             return replace(paper(), mixed=("means", "quats"), gate_per_attribute=True, std_normalize=True)
@@ -139,11 +189,26 @@ class MoDEConfig(ExpertConfig):
         }
 
 
-def _member(name: str, scene: Scene, config: MoDEConfig) -> Expert:
-    from moegs.recipes import config_for
+def member_config(name: str, scene: Scene, config: MoDEConfig) -> ExpertConfig:
+    """Member ``name``'s config: its ``paper`` recipe for the scene's dataset; where ``config.member_fields``
+    has the member, those fields on top (the scene's frame adaptations, such as Grid4D's bound on a
+    stand-in, still win) and the code's run length, whose steps they count; then the ``quick`` reductions
+    if ``member_preset`` asks for them. ``train`` is ``config``'s."""
+    from moegs.recipes import config_for, with_fields
 
-    member = config_for(name, scene.name, config.member_preset, dataset=scene.dataset).config
-    return get_expert_class(name).from_scene(scene, replace(member, train=config.train))
+    recipe = config_for(name, scene.name, "paper", dataset=scene.dataset)
+    member = recipe.config
+    if name in config.member_fields:
+        member = with_fields(member, config.member_fields[name])
+        member = with_fields(member, recipe.frame_overrides)
+        member = replace(member, train=replace(member.train, iterations=CODE_ITERATIONS))
+    if config.member_preset == "quick":
+        member = with_fields(member, type(member).quick_reductions(member))
+    return replace(member, train=config.train)
+
+
+def _member(name: str, scene: Scene, config: MoDEConfig) -> Expert:
+    return get_expert_class(name).from_scene(scene, member_config(name, scene, config))
 
 
 class MoDEExpert(Expert):

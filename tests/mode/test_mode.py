@@ -161,3 +161,57 @@ def test_trains_and_reloads(scene, tmp_path):
     assert again.deform_from == 1  # checkpointed: a resumed run keeps the warm-up where it was
     with torch.no_grad():
         torch.testing.assert_close(again.frame(0.5).means, mode.eval().frame(0.5).means)
+
+
+def _scene_named(name: str, dataset: str):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(name=name, dataset=dataset)
+
+
+def test_members_take_the_code_settings_over_their_dataset_recipe():
+    """The MoDE code gives its Grid4D member Grid4D's D-NeRF geometry with one hidden layer and its
+    E-D3DGS member a 64-wide net without a warm-up, on every dataset (``arguments_MoDE/__init__.py``)."""
+    from moegs.experts.base import quick_step
+    from moegs.mode.expert import CODE_ITERATIONS, member_config
+    from moegs.recipes import config_for
+
+    n3v = _scene_named("n3v:cook_spinach", "n3v")
+    grid = member_config("grid4d", n3v, MoDEConfig.from_preset("code"))
+    own = config_for("grid4d", "n3v:cook_spinach", "paper").config
+    assert (own.bound, own.depth, own.temporal_desired) == (30.0, 0, (512, 512, 128))  # Grid4D's N3V recipe
+    assert (grid.bound, grid.depth, grid.temporal_base, grid.temporal_desired) == (
+        1.6,
+        1,
+        (8, 8, 8),
+        (32, 32, 16),
+    )
+    assert grid.network_lr_scale == 5.0 and grid.train == MoDEConfig.from_preset("code").train
+    stand_in = member_config(
+        "grid4d", _scene_named("synthetic:n3v_like", "n3v"), MoDEConfig.from_preset("code")
+    )
+    assert stand_in.bound is None and stand_in.depth == 1  # a stand-in's bound still comes from the scene
+
+    quick = MoDEConfig.from_preset("quick")
+    emb = member_config("ed3dgs", n3v, MoDEConfig.from_preset("code"))
+    assert (emb.width, emb.deform_from, emb.coarse_to_fine_until, emb.coarse_min_embeddings) == (
+        64,
+        0,
+        20_000,
+        False,
+    )
+    assert "opacities" not in emb.deform
+    emb_quick = member_config("ed3dgs", n3v, quick)
+    assert emb_quick.coarse_to_fine_until == quick_step(20_000, CODE_ITERATIONS)  # the same share of the run
+    base = member_config("fourdgs", n3v, quick)  # no member fields: the base's own quick recipe
+    assert base == replace(config_for("fourdgs", "n3v:cook_spinach", "quick").config, train=quick.train)
+
+
+def test_member_fields_survive_the_config_file(tmp_path):
+    from moegs.io.config import from_dict, to_dict
+    from moegs.mode.expert import member_config
+
+    cfg = MoDEConfig.from_preset("quick")
+    again = from_dict(MoDEConfig, to_dict(cfg))
+    scene = _scene_named("n3v:cook_spinach", "n3v")
+    assert member_config("grid4d", scene, again) == member_config("grid4d", scene, cfg)
