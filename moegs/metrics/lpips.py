@@ -195,8 +195,10 @@ class _AlexLPIPS(nn.Module):
 
 @lru_cache(maxsize=8)
 def _network(folder: str, device: torch.device, dtype: torch.dtype) -> _AlexLPIPS:
-    """The network read on the host, then moved to ``device``."""
-    with torch.device("cpu"):
+    """The network read on the host, then moved to ``device``. Its layers' default initialisation, which
+    the read weights replace, draws from a forked generator: a run that scores its first view mid-training
+    (``select_best_at``, ``eval_every``) trains on as it would have without."""
+    with torch.random.fork_rng(devices=[]), torch.device("cpu"):
         network = _AlexLPIPS(folder)
     return network.to(device=device, dtype=dtype)
 

@@ -25,6 +25,9 @@ class TrainConfig:
     """Seeds the initialisation subsampling, view order and every random op of training."""
     eval_every: int = 0
     """Evaluate on the test views every this many iterations (0: only at the end)."""
+    select_best_at: tuple[int, ...] = ()
+    """Score the test views at these iterations and also report the best-scoring model (``best`` beside
+    the last model's ``test``; Grid4D's ``iteration_best``, ``moegs.train.select``). Empty: none."""
     checkpoint_every: int = 0
     """Write a checkpoint every this many iterations (0: only at the end)."""
     log_every: int = 10
@@ -41,6 +44,11 @@ class TrainConfig:
             raise ValueError(f"TrainConfig.iterations must be >= 1, got {self.iterations}")
         if self.sh_degree_interval < 1:
             raise ValueError(f"TrainConfig.sh_degree_interval must be >= 1, got {self.sh_degree_interval}")
+        self.select_best_at = tuple(self.select_best_at)
+        if any(step < 1 for step in self.select_best_at):
+            raise ValueError(
+                f"TrainConfig.select_best_at must hold iterations >= 1, got {self.select_best_at}"
+            )
         if self.batch_size < 1:
             raise ValueError(f"TrainConfig.batch_size must be >= 1, got {self.batch_size}")
         if not 0.0 <= self.lambda_dssim <= 1.0:

@@ -54,13 +54,14 @@ from moegs.train.losses import photometric
 from moegs.train.memory import keep_freed_memory
 from moegs.train.optim import Optimizers
 from moegs.train.sampler import ViewSampler
+from moegs.train.select import BestModel
 from moegs.train.stopping import raise_if_stopped, stop_requests
 
 ViewLoss = Callable[[View, torch.Tensor, torch.Tensor, float], torch.Tensor]
 """``(view, rgb [H, W, 3], target [H, W, 3], lambda_dssim) -> loss`` (see ``train(loss=...)``)."""
 
 
-RUN_ONLY_FIELDS = ("train.checkpoint_every", "train.eval_every", "train.log_every")
+RUN_ONLY_FIELDS = ("train.checkpoint_every", "train.eval_every", "train.log_every", "train.select_best_at")
 """Config fields that do not change what a run computes: a checkpoint resumes under other values."""
 
 
@@ -137,6 +138,13 @@ class TrainingRun:
 
     # -- checkpoints ------------------------------------------------------------------------------
     def save(self, path: Path) -> None:
+        """Write the run's checkpoint: it is the last good one from now on."""
+        self.write(path)
+        self.saved_step = self.step
+        self.last_good = f"Last good checkpoint: {path} (step {self.step})."
+
+    def write(self, path: Path) -> None:
+        """Write the run's state to ``path`` (a checkpoint, or a copy such as the best model's)."""
         self.check_parameters()  # a checkpoint never holds NaN/Inf
         save_checkpoint(
             path,
@@ -151,8 +159,6 @@ class TrainingRun:
                 self.scene,
             ),
         )
-        self.saved_step = self.step
-        self.last_good = f"Last good checkpoint: {path} (step {self.step})."
 
     def resume(self, path: Path) -> None:
         state = read_checkpoint(path)
@@ -320,7 +326,8 @@ def train(
     Returns:
         ``{"expert", "scene", "stand_in", "completed", "step", "iterations", "num_gaussians",
         "train_seconds", "seconds_per_step", "final_loss", "resumed_from", "test" (see
-        ``evaluate``; None when stopped early), "evaluations" (periodic test PSNRs)}``.
+        ``evaluate``; None when stopped early), "evaluations" (periodic test PSNRs)}``, and "best"
+        (``{"step", "test"}`` of the best-scoring model) when ``config.select_best_at`` scored any.
 
     Raises:
         NonFiniteError: on NaN/Inf in a loss, gradient or parameter; the last checkpoint is kept.
@@ -344,6 +351,7 @@ def train(
 
         last = config.iterations if stop_after is None else min(stop_after, config.iterations)
         test_views = eval_views(scene.test, config.max_eval_views)
+        best = BestModel(config.select_best_at if test_views else (), out, resumed_from)
         evaluations, start_seconds = [], run.seconds
         expert.train()
         bar = tqdm(
@@ -380,6 +388,10 @@ def train(
                     }
                 )
                 expert.train()
+            if step in best.steps:
+                scored = evaluate(expert, test_views, scene.background, config.metric_profile, config.backend)
+                best.offer(step, scored["psnr"], expert, run.write)
+                expert.train()
         bar.close()
         if ckpt is not None and run.saved_step != run.step:
             run.save(ckpt)
@@ -391,6 +403,10 @@ def train(
     test = None
     if completed and test_views:
         test = evaluate(expert, test_views, scene.background, config.metric_profile, config.backend)
+    best_test = test
+    if completed and best.step is not None and best.step != run.step:
+        kept = best.expert(scene, run.device)
+        best_test = evaluate(kept, test_views, scene.background, config.metric_profile, config.backend)
     steps_run = last - (resumed_from or 0)
     result = {
         "expert": expert.name,
@@ -408,6 +424,8 @@ def train(
         "test": test,
         "evaluations": evaluations,
     }
+    if completed and best.step is not None:
+        result["best"] = {"step": best.step, "test": best_test}
     if out is not None:
         write_json(out / "metrics.json", result)
     return result

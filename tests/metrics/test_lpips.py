@@ -160,3 +160,16 @@ def test_exceptions(frame):
         lpips(frame[:30], frame[:30])
     with pytest.raises(ValueError, match=r"^LPIPS: unknown LPIPS scaling"):
         LPIPS(scaling="x")
+
+
+@needs_weights
+def test_building_the_network_draws_nothing_from_the_callers_generator():
+    """A run scoring its first view mid-training must train on as it would have without: the network's
+    layers are built (and their default initialisation drawn) under a forked generator."""
+    from moegs.metrics.lpips import _network
+
+    _network.cache_clear()
+    torch.manual_seed(7)
+    state = torch.get_rng_state()
+    lpips(torch.rand(32, 32, 3, generator=torch.Generator().manual_seed(0)), torch.zeros(32, 32, 3))
+    assert _network.cache_info().currsize == 1 and torch.equal(torch.get_rng_state(), state)

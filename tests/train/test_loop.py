@@ -206,3 +206,33 @@ def test_runs_repeat_bit_for_bit():
         train(expert, scene, config.train, progress=False)
         runs.append(torch.cat([p.detach().flatten() for p in expert.parameters()]))
     assert all(torch.equal(runs[0], r) for r in runs[1:])
+
+
+def test_best_model_is_kept_across_a_resume_and_without_a_folder(scene, tmp_path):
+    """Grid4D's ``iteration_best``: the best-scoring model at the selection steps is reported beside the
+    last one, from a run folder (also after an interruption) or from memory, with the same result; the
+    densifying static expert changes its size between the steps, so the kept model is a real copy."""
+    steps = (10, 25, ITERS)
+    whole = train(_static(scene, select_best_at=steps), scene, out_dir=tmp_path / "whole", progress=False)
+    best = whole["best"]
+    assert best["step"] in steps and best["test"]["psnr"] >= whole["test"]["psnr"]
+    record = json.loads((tmp_path / "whole" / "best.json").read_text())
+    assert record == {"step": best["step"], "psnr": best["test"]["psnr"]}
+    kept, _ = load_expert(tmp_path / "whole" / "best.safetensors", scene)
+    if best["step"] != ITERS:
+        assert kept.num_gaussians != whole["num_gaussians"] or best["test"] != whole["test"]
+
+    part = _static(scene, select_best_at=steps)
+    train(part, scene, out_dir=tmp_path / "part", progress=False, stop_after=25)
+    resumed = train(_static(scene, select_best_at=steps), scene, out_dir=tmp_path / "part", progress=False)
+    assert resumed["resumed_from"] == 25  # keeping the best model at step 25 did not stand for the checkpoint
+    in_memory = train(_static(scene, select_best_at=steps), scene, progress=False)
+    assert resumed["best"] == best and in_memory["best"] == best
+    assert "best" not in train(_static(scene), scene, progress=False)
+
+
+def test_a_fresh_run_drops_another_runs_best_model(scene, tmp_path):
+    train(_static(scene, select_best_at=(10,)), scene, out_dir=tmp_path, progress=False)
+    assert (tmp_path / "best.json").is_file()
+    again = train(_static(scene), scene, out_dir=tmp_path, progress=False, resume=False)
+    assert "best" not in again and not (tmp_path / "best.json").exists()
