@@ -349,7 +349,10 @@ class ED3DGSConfig(ExpertConfig):
     BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "white"}
     """``white_background`` is forced on for every dataset (``arguments/__init__.py:54``, ``train.py:46``)."""
     LOADER_ARGS: ClassVar[dict[str, dict[str, Any]]] = {
-        "n3v": {"resample": "lanczos"},  # scene/cameras.py:128 original_image.resize(img_wh, Image.LANCZOS)
+        "n3v": {
+            "resample": "lanczos",  # scene/cameras.py:128 original_image.resize(img_wh, Image.LANCZOS)
+            "points": "mvs100k",  # scene/dataset_readers.py:293 points3D_downsample.ply (README.md:59-61)
+        },
         "n3v:coffee_martini": {"exclude": ("cam13",)},  # README.md:43: remove cam13.mp4 and its pose
     }
     SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
@@ -645,13 +648,11 @@ class ED3DGSExpert(Expert):
 
     # -- deformation -----------------------------------------------------------------------------------
     def knots(self) -> tuple[int, int]:
-        """(coarse, fine) knot counts now: the schedule while training, max at test."""
-        c, step = self.config, self.step
-        fine = (
-            knots_at(step, c.min_embeddings, c.max_embeddings, c.coarse_to_fine_until)
-            if self.training
-            else c.max_embeddings
-        )
+        """(coarse, fine) knot counts at the current step, in training and at test alike (the original's
+        ``int_lininterp(iter)`` in both, ``scene/deformation.py:80``, ``render.py:54``): a model evaluated
+        before ``coarse_to_fine_until`` reads fewer knots than the finished one."""
+        c = self.config
+        fine = knots_at(self.step, c.min_embeddings, c.max_embeddings, c.coarse_to_fine_until)
         return (c.min_embeddings if c.coarse_min_embeddings else fine), fine
 
     def coefficients(self) -> dict[str, float]:

@@ -147,13 +147,18 @@ def test_untrained_embeddings_and_zero_ramp_give_the_canonical_frame():
     assert not torch.allclose(expert.frame(0.3, scene.train[0].camera).means, expert.splats["means"])
 
 
-def test_knots_follow_the_schedule_in_training_and_max_at_test():
+def test_knots_follow_the_schedule_in_training_and_at_test():
+    """The original passes the iteration at test too (``render.py:54``): an early evaluation reads the
+    interpolated knot count, the finished model the maximum."""
     expert, _ = _expert()
     c = expert.config
     half = c.coarse_to_fine_until // 2
     expert.on_step(half)
     fine = int(c.min_embeddings + (c.max_embeddings - c.min_embeddings) * half / c.coarse_to_fine_until)
     assert expert.knots() == (c.min_embeddings, fine)
+    expert.eval()
+    assert expert.knots() == (c.min_embeddings, fine)
+    expert.train()
     expert.on_step(c.coarse_to_fine_until)
     assert expert.knots() == (c.min_embeddings, c.max_embeddings)
     expert.eval()
