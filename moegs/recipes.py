@@ -35,6 +35,9 @@ from moegs.experts.base import DatasetPreset
 from moegs.io.config import changed_fields, get_field, with_fields
 
 PRESETS = ("paper", "quick")
+QUICK_LOADER_ARGS = {"points": "auto"}
+"""Loader arguments the ``quick`` preset replaces: it starts from whichever initial cloud the scene folder
+has, where ``paper`` asks for each original's own (a missing one is an error naming the file)."""
 """Recipe presets: the original's protocol and its named CPU reduction."""
 
 
@@ -213,6 +216,8 @@ def config_for(
     user = dict(overrides or {})
     config = with_fields(config, user)
     loader_args = {**cls.LOADER_ARGS.get(dataset, {}), **cls.LOADER_ARGS.get(key, {})} if real else {}
+    if preset == "quick":
+        loader_args.update((k, v) for k, v in QUICK_LOADER_ARGS.items() if k in loader_args)
     return Recipe(
         expert=expert,
         scene=scene,

@@ -143,8 +143,9 @@ class ExpertConfig(Presets):
     BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "black"}
     LOADER_ARGS: ClassVar[dict[str, dict[str, Any]]] = {}
     """``load_scene`` arguments the original trains a real scene with, by dataset (``"n3v"``) or scene
-    (``"n3v:coffee_martini"``, which wins): excluded cameras, the resize filter (``moegs.recipes``
-    passes them as ``Recipe.loader_args``; stand-ins are generated, so they take none)."""
+    (``"n3v:coffee_martini"``, which wins): excluded cameras, the resize filter, the initial cloud
+    (``moegs.recipes`` passes them as ``Recipe.loader_args``; ``quick`` reads whichever cloud the folder
+    has, ``QUICK_LOADER_ARGS``; stand-ins are generated, so they take none)."""
 
     DEFAULT_DATASET: ClassVar[str | None] = None
     """The dataset whose original config the field defaults are (its ``paper-<dataset>`` preset is the

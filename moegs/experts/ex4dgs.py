@@ -275,7 +275,11 @@ class Ex4DGSConfig(ExpertConfig):
     BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "white"}
     """Evaluation on white (``render.py:131``); training draws a random background per iteration."""
     LOADER_ARGS: ClassVar[dict[str, dict[str, Any]]] = {
-        "n3v": {"resample": "bilinear"},  # utils/general_utils.py:23 PILtoTorch(..., resample=2): bilinear
+        "n3v": {
+            "resample": "bilinear",  # utils/general_utils.py:23 PILtoTorch(..., resample=2): bilinear
+            "points": "sparse",  # scene/dataset_readers.py:558-566 colmap_<start>/sparse/0 of the start frame
+        },
+        "technicolor": {"points_frames": "first"},  # scene/dataset_readers.py:492-501 the start frame's
     }
     SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
         # configs/techni/<Scene>.json: densification_interval, densify_until, extract_from_iter, lrs,

@@ -207,7 +207,10 @@ class FourDGSConfig(StaticConfig):
     """``_white_background = True`` as a ``store_true`` flag: it cannot be switched off
     (``arguments/__init__.py``; ``train.py`` background)."""
     LOADER_ARGS: ClassVar[dict[str, dict[str, Any]]] = {
-        "n3v": {"resample": "lanczos"},  # scene/neural_3D_dataset_NDC.py:371 img.resize(..., Image.LANCZOS)
+        "n3v": {
+            "resample": "lanczos",  # scene/neural_3D_dataset_NDC.py:371 img.resize(..., Image.LANCZOS)
+            "points": "mvs40k",  # scene/dataset_readers.py:444 points3D_downsample2.ply (README.md:151-153)
+        },
     }
     SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
         # kplanes temporal resolution (arguments/dnerf/<scene>.py:8, arguments/hypernerf/<scene>.py:7)

@@ -170,6 +170,12 @@ class STGConfig(ExpertConfig):
     }
     BACKGROUNDS: ClassVar[dict[str, str]] = {"*": "black"}
     """Black (``thirdparty/gaussian_splatting/arguments/__init__.py:69``; ``train.py:91``)."""
+    LOADER_ARGS: ClassVar[dict[str, dict[str, Any]]] = {
+        # every frame's COLMAP points of the window, each at its time (dataset_readers.py:816-836, N3V;
+        # :913-932, Technicolor)
+        "n3v": {"points": "frames"},
+        "technicolor": {"points_frames": "all"},
+    }
     SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
         # densify mode 2 (configs/n3d_full/<scene>.json:4-7; helper_train.py:233-256): opacity pruning up to
         # 8900, the ω mask only to 8999, nothing after 9000; evaluated at test_iteration (:6)

@@ -372,26 +372,41 @@ def test_with_fields_rebuilds_nested_configs_once():
 
 def test_recipes_carry_the_originals_loader_arguments():
     """Real N3V: E-D3DGS drops cam13 on coffee_martini (its README.md:43) and resizes with Lanczos, as do
-    4DGaussians and Grid4D; Ex4DGS bilinear; STG keeps the loader's bicubic. Stand-ins take none. The
+    4DGaussians and Grid4D; Ex4DGS bilinear; STG keeps the loader's bicubic. Each starts from its own
+    initial cloud at ``paper`` (``quick`` takes whichever the folder has). Stand-ins take none. The
     arguments reach load_scene through the recipe and through a run's recorded config.json."""
     from moegs.recipes import scene_load_kwargs
 
     coffee = config_for("ed3dgs", "n3v:coffee_martini", "paper")
-    assert coffee.loader_args == {"resample": "lanczos", "exclude": ("cam13",)}
+    assert coffee.loader_args == {"resample": "lanczos", "points": "mvs100k", "exclude": ("cam13",)}
     assert coffee.load_kwargs["exclude"] == ("cam13",) and coffee.load_kwargs["resample"] == "lanczos"
-    assert config_for("ed3dgs", "n3v:sear_steak", "quick").loader_args == {"resample": "lanczos"}
-    assert config_for("fourdgs", "n3v:sear_steak", "paper").loader_args == {"resample": "lanczos"}
-    assert config_for("grid4d", "n3v:sear_steak", "paper").loader_args == {"resample": "lanczos"}
-    assert config_for("ex4dgs", "n3v:sear_steak", "paper").loader_args == {"resample": "bilinear"}
-    assert config_for("stg", "n3v:sear_steak", "paper").loader_args == {}
+    quick = config_for("ed3dgs", "n3v:sear_steak", "quick").loader_args
+    assert quick == {"resample": "lanczos", "points": "auto"}
+    assert config_for("fourdgs", "n3v:sear_steak", "paper").loader_args == {
+        "resample": "lanczos",
+        "points": "mvs40k",
+    }
+    assert config_for("grid4d", "n3v:sear_steak", "paper").loader_args == {
+        "resample": "lanczos",
+        "points": "mvs40k",
+    }
+    assert config_for("ex4dgs", "n3v:sear_steak", "paper").loader_args == {
+        "resample": "bilinear",
+        "points": "sparse",
+    }
+    assert config_for("stg", "n3v:sear_steak", "paper").loader_args == {"points": "frames"}
+    assert config_for("stg", "technicolor:birthday", "paper").loader_args == {"points_frames": "all"}
+    assert config_for("stg", "technicolor:birthday", "quick").loader_args == {"points_frames": "all"}
+    assert config_for("ex4dgs", "technicolor:birthday", "paper").loader_args == {"points_frames": "first"}
     assert config_for("ed3dgs", "synthetic:n3v_like", "quick").loader_args == {}
     recorded = coffee.provenance()["loader_args"]
-    assert recorded == {"resample": "lanczos", "exclude": ["cam13"]}  # JSON: the tuple is a list
+    assert recorded == {"resample": "lanczos", "points": "mvs100k", "exclude": ["cam13"]}  # JSON: a list
     reloaded = scene_load_kwargs(coffee.scene, coffee.background, 0.5, False, loader_args=recorded)
     assert reloaded == {
         "background": "white",
         "resolution_scale": 0.5,
         "resample": "lanczos",
+        "points": "mvs100k",
         "exclude": ("cam13",),
     }
-    assert "loader arguments: resample='lanczos', exclude=('cam13',)" in coffee.steps
+    assert "loader arguments: resample='lanczos', points='mvs100k', exclude=('cam13',)" in coffee.steps
