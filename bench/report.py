@@ -414,14 +414,14 @@ def signals_markdown(signals: dict[str, Any]) -> list[str]:
 
 def pruning_markdown(rows: list[dict[str, Any]]) -> list[str]:
     """The pruned MoE-GS cells: Gaussians before and after, the share removed, and the paper's memory
-    reduction of the same row (against the largest memory of its table)."""
+    reduction of the same row (against its table's unpruned row)."""
     if not rows:
         return []
     lines = [
         "",
         "Pruning (gate-aware, `moegs.moe.prune`): the share of the experts' Gaussians each pruned MoE-GS "
         "cell removed, while the router trained or once after; the paper reports memory, whose share "
-        "removed is given against its table's largest:",
+        "removed is given against its table's unpruned row:",
         "",
         "| table | row | scene | seed | when | Gaussians | removed | paper: memory removed |",
         "|---|---|---|---|---|---|---|---|",

@@ -7,7 +7,7 @@
 * ``routing_rows``: every MoE-GS cell's routing signal (``moegs.moe.winner_coherence`` of the winner map,
   and the share of dynamic / static pixels each expert wins);
 * ``pruning_rows``: every pruned MoE-GS cell's share of Gaussians removed (each seed), beside the paper's
-  memory reduction for that row (against the largest memory of its table);
+  memory reduction for that row (against its table's unpruned row, ``Spec.unpruned``);
 * ``seed_noise``: the seed-to-seed spread (max - min over seeds) per scene and row, of the stability runs
   and of real-scene tables trained with several seeds; ``noise_for`` the spread a table's claims are
   judged against (its scenes' own, or the stand-ins' where a scene has none). Claims whose margin is
@@ -129,8 +129,8 @@ def routing_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
 
 def pruning_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
     """``[{"table", "row", "scene", "seed", "when", "before", "after", "removed", "paper_memory_removed"}]``
-    of the MoE-GS cells that pruned; ``paper_memory_removed`` is ``1 - row / largest`` of the paper table's
-    Memory column (None where it has none)."""
+    of the MoE-GS cells that pruned; ``paper_memory_removed`` is ``1 - row / unpruned row`` of the paper
+    table's Memory column (``Spec.unpruned``; None where either is missing)."""
     from bench.paper import list_paper_tables, load_paper_table
 
     rows = []
@@ -145,7 +145,8 @@ def pruning_rows(plan: Plan, workspace: Workspace) -> list[dict[str, Any]]:
                 for v in load_paper_table(sp.spec.id).values
                 if v["metric"] == "Memory" and isinstance(v["value"], int | float)
             }
-        paper = 1.0 - memory[slot.row] / max(memory.values()) if slot.row in memory else None
+        reference = memory.get(sp.spec.unpruned)
+        paper = 1.0 - memory[slot.row] / reference if slot.row in memory and reference else None
         rows.append(
             {
                 "table": sp.spec.id,

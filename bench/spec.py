@@ -207,6 +207,7 @@ class Spec:
             dynamic region ("PSNR dynamic").
         candidates: the spec's extension by candidate experts (``bench.all --candidate NAME``):
             ``candidates(spec, names) -> Spec`` with their rows and claims added; None when it takes none.
+        unpruned: the row whose memory the pruned rows' is compared with (the report's pruning section).
     """
 
     id: str
@@ -227,6 +228,7 @@ class Spec:
     notes: str = ""
     motion: bool = False
     candidates: Callable[[Spec, tuple[str, ...]], Spec] | None = field(default=None, compare=False)
+    unpruned: str | None = None
 
     def __post_init__(self) -> None:
         if self.axis not in AXES:

@@ -10,6 +10,7 @@ SPEC = Spec(
     dataset="n3v",
     axis="metrics",
     metrics=EFFICIENCY,
+    unpruned=_N2,
     rows=(
         expert("STG†", "STG"),
         expert("Ex4DGS"),

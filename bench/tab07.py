@@ -10,6 +10,7 @@ SPEC = Spec(
     dataset="n3v",
     axis="metrics",
     metrics=EFFICIENCY,
+    unpruned=_NO_PR,
     rows=(
         moe(_NONE, 3, single_pass=False),
         moe(_NO_SP, 3, single_pass=False, prune="train"),

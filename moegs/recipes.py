@@ -35,10 +35,10 @@ from moegs.experts.base import DatasetPreset
 from moegs.io.config import changed_fields, get_field, with_fields
 
 PRESETS = ("paper", "quick")
+"""Recipe presets: the original's protocol and its named CPU reduction."""
 QUICK_LOADER_ARGS = {"points": "auto"}
 """Loader arguments the ``quick`` preset replaces: it starts from whichever initial cloud the scene folder
 has, where ``paper`` asks for each original's own (a missing one is an error naming the file)."""
-"""Recipe presets: the original's protocol and its named CPU reduction."""
 
 
 @dataclass(frozen=True)

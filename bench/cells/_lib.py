@@ -14,6 +14,7 @@ RUN_FIELDS = (
     "train.metric_profile",
     "train.eval_every",
     "train.checkpoint_every",
+    "train.select_best_at",
 )
 """Fields the bench sets on every recipe (seed and evaluation protocol); everything else is the
 resolver's (``moegs.recipes.config_for``), plus a dataset's conventions (``params["config"]``) and the
@@ -63,6 +64,7 @@ def recipe_of(ctx: Any, task: Task, expert: str | None = None, extra: dict | Non
             "train.metric_profile": p.metric_profile,
             "train.eval_every": 0,
             "train.checkpoint_every": p.checkpoint_every,
+            "train.select_best_at": (),  # the tables score the last model; no test-set selection
         }
     )
     return config_for(name, task.scene, p.expert_preset, dataset=dataset, overrides=overrides)

@@ -172,14 +172,16 @@ def run(task: Task, ctx: Any) -> dict[str, Any]:
     details: dict[str, Any] = {}
     prune = task.params.get("prune")
     if prune == PRUNE_WHILE_TRAINING:
-        before = [int(m.numel()) for m in model.kept] if model.kept is not None else None
+        if model.kept is None:
+            raise RuntimeError(f"moe: the router of {build_task.key} was to prune while training and did not")
+        before = [int(m.numel()) for m in model.kept]
         after = [e.num_gaussians for e in model.experts]
         details["pruning"] = {
             "when": "training",
-            "before": before or after,
+            "before": before,
             "after": after,
-            "removed_fraction": 1.0 - sum(after) / max(sum(before or after), 1),
-            "threshold": router_config(ctx, build_task).prune_threshold,
+            "removed_fraction": 1.0 - sum(after) / max(sum(before), 1),
+            "threshold": model.config.prune_threshold,
         }
     elif prune is not None:
         from moegs.moe import prune as gate_prune

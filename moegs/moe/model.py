@@ -119,11 +119,13 @@ def trained_counts(model: MoEGS) -> list[int]:
 
 
 def apply_kept(experts: Sequence[Expert], kept: Sequence[Tensor] | None) -> None:
-    """Prune the freshly loaded ``experts`` in place to a pruned router's ``kept`` rows (None: nothing)."""
+    """Prune ``experts`` in place to a pruned router's ``kept`` rows (None: nothing); an expert already
+    pruned to them (the objects the router trained over) stays as it is."""
     if kept is None:
         return
     for expert, mask in zip(experts, kept, strict=True):
-        expert.keep_gaussians(mask.to(device=experts_device(experts), dtype=torch.bool))
+        if expert.num_gaussians == mask.numel():
+            expert.keep_gaussians(mask.to(device=experts_device(experts), dtype=torch.bool))
 
 
 def _check_experts(state: dict, experts: Sequence[Expert], path: Path) -> None:
@@ -131,7 +133,12 @@ def _check_experts(state: dict, experts: Sequence[Expert], path: Path) -> None:
     if state["experts"] != names:
         raise ValueError(f"{path}: router was trained for experts {state['experts']}, got {names}")
     counts = [e.num_gaussians for e in experts]
-    if list(state["num_gaussians"]) != counts:
+    kept = state.get("kept")
+    pruned = list(state["num_gaussians"]) if kept is None else [int(m.sum()) for m in kept]
+    if any(
+        n not in (trained, now)
+        for n, trained, now in zip(counts, state["num_gaussians"], pruned, strict=True)
+    ):
         raise ValueError(
             f"{path}: router was trained for experts with {state['num_gaussians']} Gaussians, got {counts}; "
             "load the same expert checkpoints the router was trained on"

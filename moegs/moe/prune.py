@@ -166,10 +166,11 @@ class WeightGradients:
                 self.seen[k] += norm > 0
 
     def prune_masks(self, threshold: float) -> list[Tensor]:
-        """Per expert, True for the Gaussians to keep: mean below ``threshold`` goes, unseen stays."""
-        return [
-            (s == 0) | (t / s.clamp(min=1) >= threshold) for t, s in zip(self.total, self.seen, strict=True)
-        ]
+        """Per expert, True for the Gaussians to keep: mean below ``threshold`` goes, unseen stays; a
+        pruning that would empty an expert is skipped for it (ours: the code has no such case)."""
+        pairs = zip(self.total, self.seen, strict=True)
+        masks = [(s == 0) | (t / s.clamp(min=1) >= threshold) for t, s in pairs]
+        return [m if m.any() else torch.ones_like(m) for m in masks]
 
     def restart(self, keep: Sequence[Tensor] | None = None) -> None:
         """Zero the sums (after a pruning, to the ``keep`` rows)."""

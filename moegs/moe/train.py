@@ -30,7 +30,7 @@ from tqdm.auto import tqdm
 from moegs.data.scene import ImageCache, Scene, View
 from moegs.device import device_name, gpu_model
 from moegs.experts.base import Expert, splat_inputs_bytes
-from moegs.io import save_checkpoint, to_dict, write_json
+from moegs.io import from_dict, save_checkpoint, to_dict, write_json
 from moegs.io.config import config_changes
 from moegs.moe.config import RouterConfig
 from moegs.moe.model import ROUTER_CHECKPOINT, MoEGS, _check_experts, apply_kept, read_router, winner_share
@@ -183,8 +183,9 @@ def train_router(
     """Train a router over the frozen ``experts`` on ``scene``'s training views, then evaluate.
 
     Args:
-        experts: trained experts (frozen here; their parameters are never changed), on the device to train
-            on: the router is built there and the losses are read back every ``LOG_EVERY`` steps.
+        experts: trained experts (frozen: no parameter of theirs trains; pruning while training, or
+            resuming such a run, removes Gaussians from them in place), on the device to train on: the
+            router is built there and the losses are read back every ``LOG_EVERY`` steps.
         scene: the scene they were trained on (cameras and images are placed beside the experts).
         config: router settings (default: the ``quick`` preset).
         out_dir: where ``router.safetensors`` (resumable), ``config.json`` and ``metrics.json`` go.
@@ -205,9 +206,17 @@ def train_router(
     out = Path(out_dir) if out_dir is not None else None
     ckpt = out / ROUTER_CHECKPOINT if out is not None else None
     state = read_router(ckpt) if resume and ckpt is not None and ckpt.is_file() else None
-    if state is not None:  # a run pruned while training goes on from its pruned experts
+    if state is not None:  # every check first: a refused resume leaves the experts as they were
         _check_experts(state, experts, ckpt)
-        apply_kept(experts, state.get("kept"))
+        scene.check_identity(state.get("scene"), ckpt, tuple(scene.identity()))
+        saved = to_dict(from_dict(RouterConfig, state["config"]))  # fields added since: their defaults
+        changed = config_changes(saved, to_dict(config), ("checkpoint_every",))
+        if changed:
+            raise ValueError(
+                f"{ckpt} was written with another router config (changed: {', '.join(changed[:6])}); "
+                "use a new out_dir or resume=False"
+            )
+        apply_kept(experts, state.get("kept"))  # a run pruned while training goes on from its pruned experts
     torch.manual_seed(config.seed)
     model = MoEGS(experts, config)
     model.kept = None if state is None else state.get("kept")
@@ -219,13 +228,6 @@ def train_router(
     with stop_requests(out is not None) as stop:  # SIGINT/SIGTERM: checkpoint, then stop
         done, history, resumed_from = 0, LossHistory([]), None
         if state is not None:
-            scene.check_identity(state.get("scene"), ckpt, tuple(scene.identity()))
-            changed = config_changes(state["config"], to_dict(config), ("checkpoint_every",))
-            if changed:
-                raise ValueError(
-                    f"{ckpt} was written with another router config (changed: {', '.join(changed[:6])}); "
-                    "use a new out_dir or resume=False"
-                )
             model.router.load_state_dict(state["router"])
             optimizers.load_state_dict(state["optimizers"])
             sampler.load_state_dict(state["sampler"])

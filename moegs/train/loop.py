@@ -373,24 +373,14 @@ def train(
                 bar.set_postfix(loss=f"{run.read_history()[-1]:.4f}", gaussians=expert.num_gaussians)
             if ckpt is not None and config.checkpoint_every and step % config.checkpoint_every == 0:
                 run.save(ckpt)
-            if (
-                config.eval_every
-                and step % config.eval_every == 0
-                and step < config.iterations
-                and test_views
-            ):
-                evaluations.append(
-                    {
-                        "step": step,
-                        "psnr": evaluate(
-                            expert, test_views, scene.background, config.metric_profile, config.backend
-                        )["psnr"],
-                    }
-                )
-                expert.train()
-            if step in best.steps:
+            periodic = bool(config.eval_every) and step % config.eval_every == 0 and bool(test_views)
+            selecting = step in best.steps
+            if (periodic or selecting) and step < config.iterations:  # the last step: the final test
                 scored = evaluate(expert, test_views, scene.background, config.metric_profile, config.backend)
-                best.offer(step, scored["psnr"], expert, run.write)
+                if periodic:
+                    evaluations.append({"step": step, "psnr": scored["psnr"]})
+                if selecting:
+                    best.offer(step, scored["psnr"], expert, run.write)
                 expert.train()
         bar.close()
         if ckpt is not None and run.saved_step != run.step:
@@ -403,6 +393,8 @@ def train(
     test = None
     if completed and test_views:
         test = evaluate(expert, test_views, scene.background, config.metric_profile, config.backend)
+    if test is not None and run.step in best.steps:
+        best.offer(run.step, test["psnr"], expert, run.write)
     best_test = test
     if completed and best.step is not None and best.step != run.step:
         kept = best.expert(scene, run.device)

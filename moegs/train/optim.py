@@ -98,6 +98,8 @@ class Optimizers:
                 for i, param in enumerate(group["params"]):
                     if param is old:
                         group["params"][i] = new
+                        for g in self.groups.values():  # the schedules' record of the group's tensors
+                            g.params = [new if q is old else q for q in g.params]
                         state = opt.state.pop(old, None)
                         if state is not None:
                             opt.state[new] = {

@@ -93,6 +93,27 @@ def every_other(self, threshold):
     return [torch.arange(len(t), device=t.device) % 2 == 0 for t in self.total]
 
 
+def above_median(self, threshold):
+    """A rule that reads the accumulator: the Gaussians whose summed gradient is below the median go."""
+    return [t >= t.median() for t in self.total]
+
+
+def test_the_accumulator_survives_a_resume(scene, trained, tmp_path, monkeypatch):
+    """Steps 5 and 6 add to what steps 4 and earlier accumulated: a resume at 4 must bring those sums back
+    for the pruning after step 6 to remove the same Gaussians."""
+    monkeypatch.setattr(WeightGradients, "prune_masks", above_median)
+    config = cfg(prune_every=3, prune_from=3)
+    whole = fresh(trained)
+    train_router(whole, scene, config, tmp_path / "whole")
+    train_router(fresh(trained), scene, config, tmp_path / "cut", stop_after=4)
+    resumed = fresh(trained)
+    train_router(resumed, scene, config, tmp_path / "cut")
+    kept = [load_moe(tmp_path / name, fresh(trained)).kept for name in ("whole", "cut")]
+    assert all(torch.equal(a, b) for a, b in zip(*kept, strict=True))
+    assert [e.num_gaussians for e in resumed] == [e.num_gaussians for e in whole]
+    assert any(int(m.sum()) < m.numel() for m in kept[0])
+
+
 def test_a_pruning_run_resumes_exactly_and_reloads(scene, trained, tmp_path, monkeypatch):
     monkeypatch.setattr(WeightGradients, "prune_masks", every_other)
     config = cfg(prune_every=3, prune_from=3)  # prunes after steps 3 and 6
@@ -107,6 +128,7 @@ def test_a_pruning_run_resumes_exactly_and_reloads(scene, trained, tmp_path, mon
     resumed = train_router(fresh(trained), scene, config, tmp_path / "cut")
     assert resumed["resumed_from"] == 4 and resumed["test"]["psnr"] == pytest.approx(full["test"]["psnr"])
 
+    assert load_moe(tmp_path / "full", full_experts, scene).num_gaussians == sum(after)  # already pruned
     reloaded_experts = fresh(trained)
     model = load_moe(tmp_path / "full", reloaded_experts, scene)
     assert [e.num_gaussians for e in reloaded_experts] == after
