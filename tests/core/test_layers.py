@@ -60,6 +60,7 @@ LAYERS = (
         "train.evaluate",
         "train.segments",
         "train.reuse",
+        "train.select",
         "recipes",
     ),
     ("moe", "mode"),
