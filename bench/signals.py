@@ -178,14 +178,17 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
     scene (``BenchPreset.table_seeds``) judges its rows against their own and paired spreads, and an
     unstable row of it (a pruning that fails at one seed) does not become every other table's noise.
     ``metrics`` (with its ``source``) at the top is the largest spread measured on a stand-in: the noise of
-    a scene without repeated trainings of its own (``noise_for``). Empty when nothing has two finished
-    seeds."""
+    a scene without repeated trainings of its own (``noise_for``). A row's spread (``rows``), and a pair's
+    (``pairs``), is its stability run's where that run measures it, else the largest over the tables that
+    trained it: one label can name two models (Table VII's pruned "MoE-GS (N=3)", Table IX's unpruned one),
+    and the stability run's is the one other tables print. Empty when nothing has two finished seeds."""
     stability = {sp.spec.id for sp in plan.specs if sp.spec.axis == "seeds"}
     widest: dict[tuple[str, bool], dict[str, float]] = {}  # (scene, from its stability run) -> spreads
     per_seed: dict[tuple[str, str, str, str | None], dict[int, tuple[str, dict[str, Any]]]] = {}
     real: dict[str, bool] = {}
     scenes: dict[str, dict[str, Any]] = {}
     cells: dict[str, set[str]] = {}  # per scene: the evaluation keys its spreads come from
+    row_spreads: dict[tuple[str, str, bool], dict[str, float]] = {}  # (scene, row, from its stability run)
     for sp, slot, result in _ok_results(plan, workspace, None, once=False):
         real[slot.scene.name] = slot.scene.real
         key = (slot.scene.name, sp.spec.id, slot.row, slot.budget_column)
@@ -209,7 +212,7 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
         entry["seeds"] = max(entry["seeds"], len(results))
         if spec_id not in entry["source"]:
             entry["source"].append(spec_id)
-        spreads = entry["rows"].setdefault(row, {})
+        spreads = row_spreads.setdefault((scene, row, spec_id in stability), {})
         largest = widest.setdefault((scene, spec_id in stability), {})
         for name, m in METRICS.items():
             values = [r.get(m.key) for r in results]
@@ -222,36 +225,54 @@ def seed_noise(plan: Plan, workspace: Workspace) -> dict[str, Any]:
         stable = widest.get((scene, True))
         entry["metrics"] = stable if stable is not None else widest.get((scene, False), {})
         entry["cells"] = digest(sorted(cells[scene]))
-        entry["pairs"] = _paired_spreads(per_seed, scene)
+        measured = {(row, stable): v for (name, row, stable), v in row_spreads.items() if name == scene}
+        entry["rows"] = _prefer_stable(measured)
+        entry["pairs"] = _paired_spreads(per_seed, scene, stability)
     return {"preset": plan.preset.name, "scenes": scenes, **_stand_in_spread(scenes)}
 
 
+def _prefer_stable(measured: dict[tuple[str, bool], Any]) -> dict[str, Any]:
+    """``{label: value}`` from ``{(label, from the stability run): value}``: the stability run's where it
+    has one, in the order the labels were first measured."""
+    out: dict[str, Any] = {}
+    for label, _ in measured:
+        if label not in out:
+            out[label] = measured[(label, True)] if (label, True) in measured else measured[(label, False)]
+    return out
+
+
 def _paired_spreads(
-    per_seed: dict[tuple[str, str, str, str | None], dict[int, tuple[str, dict[str, Any]]]], scene: str
+    per_seed: dict[tuple[str, str, str, str | None], dict[int, tuple[str, dict[str, Any]]]],
+    scene: str,
+    stability: set[str],
 ) -> list[dict[str, Any]]:
     """``[{"rows": [a, b], "seeds": n, "metrics": {name: spread}}]``: for two rows of one table and column
     on ``scene`` trained with the same two or more seeds, the spread (max - min over those seeds) of the
     per-seed difference a - b: the noise of the difference a claim compares, which shared experts or seeds
-    make smaller than either row's own spread. A pair measured in several tables keeps its largest."""
+    make smaller than either row's own spread. A pair the ``stability`` run measures is that run's; another
+    measured in several tables keeps its largest."""
     groups: dict[tuple[str, str | None], dict[str, dict[int, dict[str, Any]]]] = {}
     for (name, spec_id, row, column), seeds in per_seed.items():
         if name == scene:
             groups.setdefault((spec_id, column), {})[row] = {s: m for s, (_, m) in seeds.items()}
-    pairs: dict[tuple[str, str], dict[str, Any]] = {}
-    for rows in groups.values():
+    measured: dict[tuple[tuple[str, str], bool], dict[str, Any]] = {}
+    for (spec_id, _column), rows in groups.items():
         names = sorted(rows)
         for i, a in enumerate(names):
             for b in names[i + 1 :]:
                 common = sorted(set(rows[a]) & set(rows[b]))
                 if len(common) < 2:
                     continue
-                entry = pairs.setdefault((a, b), {"rows": [a, b], "seeds": len(common), "metrics": {}})
+                entry = measured.setdefault(
+                    ((a, b), spec_id in stability), {"rows": [a, b], "seeds": len(common), "metrics": {}}
+                )
                 entry["seeds"] = max(entry["seeds"], len(common))
                 for metric_name, m in METRICS.items():
                     diffs = [_difference(rows[a][s], rows[b][s], m.key) for s in common]
                     if None not in diffs:
                         spread = max(diffs) - min(diffs)
                         entry["metrics"][metric_name] = max(entry["metrics"].get(metric_name, 0.0), spread)
+    pairs = _prefer_stable(measured)
     return [pairs[k] for k in sorted(pairs)]
 
 

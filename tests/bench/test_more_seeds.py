@@ -110,3 +110,28 @@ def test_a_stability_scenes_noise_stays_its_stability_runs(monkeypatch, tmp_path
     assert stand_in["metrics"]["PSNR"] == pytest.approx(0.4)  # Table IX's rows: 26.0 to 26.4
     assert stand_in["rows"]["MoE-GS (55% pruning)"]["PSNR"] == pytest.approx(14.4)
     assert {"tab05", "tab09"} <= set(stand_in["source"])
+
+
+def test_a_label_the_stability_run_measures_keeps_that_runs_spread(monkeypatch, tmp_path):
+    """Table VII's "MoE-GS (N=3)" is pruned, Table IX's is not: when VII's breaks at one seed, the spread
+    other tables judge "MoE-GS (N=3)" by stays IX's, while VII's own pairs keep theirs."""
+    from helpers.cells import write_ok_result
+
+    from bench.signals import seed_noise
+    from bench.store import Workspace
+
+    monkeypatch.setattr(bench.plan, "resolve_scenes", staged_scenes())
+    quick = replace(get_preset("quick"), table_seeds={"tab07": 3})
+    plan = bench.plan.make_plan(["tab07", "tab09"], quick)
+    ws = Workspace(tmp_path)
+    pruned = ("w/o Single-Pass", "MoE-GS (N=3)")
+    for sp in plan.specs:
+        for slot in sp.slots:
+            wild = sp.spec.id == "tab07" and slot.row in pruned and slot.seed == 1
+            write_ok_result(ws, slot.task, psnr=12.0 if wild else 26.0 + 0.2 * slot.seed)
+    stand_in = seed_noise(plan, ws)["scenes"]["synthetic:n3v_like"]
+    assert stand_in["rows"]["MoE-GS (N=3)"]["PSNR"] == pytest.approx(0.4)  # Table IX's: 26.0 to 26.4
+    assert stand_in["rows"]["w/o Single-Pass"]["PSNR"] == pytest.approx(14.4)  # only VII measures it
+    pairs = {tuple(p["rows"]): p["metrics"]["PSNR"] for p in stand_in["pairs"]}
+    assert pairs[("MoE-GS (N=3)", "w/o Pruning")] == pytest.approx(14.2)  # VII's pair: 0, -14.2, 0
+    assert pairs[("E-D3DGS", "MoE-GS (N=3)")] == pytest.approx(0.0)  # IX's pair: both rise 0.2 a seed
