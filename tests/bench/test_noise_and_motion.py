@@ -691,7 +691,7 @@ def test_paired_spreads_come_from_the_seeds_both_rows_trained():
         ("s", "tab17", "Lone", None): {0: ("k", {"psnr": 1.0})},  # one seed: no pair
         ("t", "tab17", "MoE", None): seeds(1.0, 2.0),  # another scene
     }
-    [pair] = _paired_spreads(per_seed, "s")
+    [pair] = _paired_spreads(per_seed, "s", stability=set())  # no stability run among these tables
     assert pair["rows"] == ["Grid4D", "MoE"] and pair["seeds"] == 3
     assert pair["metrics"]["PSNR"] == pytest.approx(0.2)  # 0.3 - 0.1; each row alone spans 2.2 and 2.3
     noise = {"scenes": {"s": {"pairs": [pair]}}}
