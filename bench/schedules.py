@@ -21,7 +21,8 @@ SCHEDULE_FIELDS: dict[str, tuple[str, ...]] = {
     "static": (SH_BANDS, "means_lr_max_steps", *ADC_WINDOW),
     # warm_up: static phase; time_noise_steps: AST annealing; deform_lr_max_steps is the paper's (>= N)
     "deformable": (SH_BANDS, "warm_up", "time_noise_steps", "means_lr_max_steps", *ADC_WINDOW),
-    "grid4d": (SH_BANDS, "warm_up", "means_lr_max_steps", *ADC_WINDOW),
+    # select_best_at: the steps the best model is chosen among (() at quick: the last model)
+    "grid4d": (SH_BANDS, "warm_up", "means_lr_max_steps", *ADC_WINDOW, "train.select_best_at"),
     # coarse (static) stage, its copy in the strategy, the densify/prune window and the reset period
     "fourdgs": (
         SH_BANDS,

@@ -20,6 +20,8 @@ import typing
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from moegs.io.config import tuples_for_lists
+
 FLAG_FIELDS = {
     "--seed": "train.seed",
     "--iterations": "train.iterations",
@@ -153,6 +155,8 @@ def parse_value(text: str, hint: Any) -> Any:
         raise _Refused
     if hint is str:
         return value if isinstance(value, str) else text.strip()
+    if typing.get_origin(hint) is dict:
+        return tuples_for_lists(value)  # a config's sequences are tuples, nested ones too
     return value  # another annotation: JSON, as before
 
 

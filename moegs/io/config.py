@@ -125,6 +125,16 @@ def from_dict(cls: type, data: dict) -> Any:
     return cls(**kwargs)
 
 
+def tuples_for_lists(value: Any) -> Any:
+    """``value`` with every list, nested ones included, as a tuple: the form config fields hold the sequences
+    that JSON reads back as lists (e.g. inside a ``dict[str, Any]`` field, where ``from_dict`` sees no hint)."""
+    if isinstance(value, list | tuple):
+        return tuple(tuples_for_lists(v) for v in value)
+    if isinstance(value, dict):
+        return {k: tuples_for_lists(v) for k, v in value.items()}
+    return value
+
+
 def config_changes(saved: dict, current: dict, ignore: tuple[str, ...] = (), prefix: str = "") -> list[str]:
     """Dotted names of the fields that differ between two :func:`to_dict` configs, ``ignore`` aside."""
     out = []

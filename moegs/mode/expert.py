@@ -39,6 +39,7 @@ from moegs.data.scene import Scene, View
 from moegs.experts import get_expert_class
 from moegs.experts.base import QUICK_ITERATIONS, DatasetPreset, Expert, ExpertConfig
 from moegs.gaussians import GaussianFrame
+from moegs.io.config import tuples_for_lists
 from moegs.mode.gating import top_k_gates, warmup_scores, weight_spline
 from moegs.train.params import ParamGroup
 from moegs.train.strategy.base import Strategy
@@ -131,6 +132,7 @@ class MoDEConfig(ExpertConfig):
     def __post_init__(self) -> None:
         self.experts = tuple(self.experts)
         self.mixed = tuple(self.mixed)
+        self.member_fields = tuples_for_lists(self.member_fields)  # as JSON or --set gave them, lists
         bad = [e for e in self.experts if e not in CANONICAL_EXPERTS]
         if len(self.experts) < 2 or bad:
             raise ValueError(

@@ -48,17 +48,7 @@ def _field(config, dotted: str):
     return config
 
 
-UNCLASSIFIED_BEST_AT = pytest.mark.xfail(
-    strict=True,
-    reason="train.select_best_at (Grid4D's best-model steps, issue 66 item 3; () at quick) is neither stretched "
-    "nor kept by bench.schedules; classifying it moves every cell key: it lands with the next regeneration",
-)
-
-
-@pytest.mark.parametrize(
-    ("expert", "scene"),
-    [pytest.param(e, s, marks=UNCLASSIFIED_BEST_AT if e == "grid4d" else ()) for e, s in CASES],
-)
+@pytest.mark.parametrize(("expert", "scene"), CASES)
 def test_every_schedule_field_is_either_stretched_or_a_kept_period(expert, scene):
     quick = config_for(expert, scene, "quick").reductions
     words = ("steps", "warm_up", "_from", "_until", "_every", "_interval", "iterations", "_at", "_gap")

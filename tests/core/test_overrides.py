@@ -32,17 +32,10 @@ def _leaves(config, prefix=""):
             yield f"{prefix}{f.name}", value
 
 
-KNOWN_TUPLES_IN_DICTS = pytest.mark.xfail(
-    strict=True,
-    reason="MoDEConfig.member_fields holds tuples (Grid4D temporal_base/desired) inside a dict[str, Any], "
-    "which JSON reads back as lists; the members built are the same (with_fields makes them tuples), the "
-    "config compares unequal. The fix is in moegs (every cell key moves): it lands with the next regeneration",
-)
-
 
 @pytest.mark.parametrize(
     "expert",
-    [pytest.param(s.name, marks=KNOWN_TUPLES_IN_DICTS if s.name == "mode" else ()) for s in list_experts()],
+    [s.name for s in list_experts()],
 )
 def test_every_default_value_reads_back_as_itself(expert):
     """Each field of each expert's quick config, written as JSON, parses back to its value and type: the

@@ -13,20 +13,13 @@ from moegs.io.config import changed_fields, config_changes, with_fields
 from moegs.train.strategy import ADCStrategy, MCMCStrategy
 
 
-KNOWN_TUPLES_IN_DICTS = pytest.mark.xfail(
-    strict=True,
-    reason="MoDEConfig.member_fields holds tuples (Grid4D temporal_base/desired) inside a dict[str, Any], "
-    "which JSON reads back as lists; the members built are the same (with_fields makes them tuples), the "
-    "config compares unequal. The fix is in moegs (every cell key moves): it lands with the next regeneration",
-)
-
 
 def _every_preset_of_every_expert() -> list:
     from moegs.experts import get_expert_class, list_experts
 
     classes = [(spec.name, get_expert_class(spec.name).config_class) for spec in list_experts()]
     return [
-        pytest.param(cls.from_preset(p), id=f"{name}-{p}", marks=KNOWN_TUPLES_IN_DICTS if name == "mode" else ())
+        pytest.param(cls.from_preset(p), id=f"{name}-{p}")
         for name, cls in classes
         for p in cls.presets()
     ]
