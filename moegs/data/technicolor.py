@@ -12,9 +12,7 @@ Layouts (detected in this order):
 
   ``<k>`` is the absolute frame number (Ex4DGS: ``colmap_151`` ...) or the index inside the window
   (STG: ``colmap_0`` .. ``colmap_49`` for frames 151..200); both are recognised. As in STG and
-  Ex4DGS, the cameras are read from the model of the window's first frame (the rig is fixed) and
-  the points from the same model (``points_frames="all"`` concatenates every frame's points with
-  their times, STG style).
+  Ex4DGS, the cameras are read from the model of the window's first frame (the rig is fixed).
 
 ``raw`` -- the dataset as distributed::
 
@@ -25,6 +23,17 @@ Layouts (detected in this order):
   read as STG and Ex4DGS read it (``pre_technicolor.py``: STG ``script/`` :79-87, Ex4DGS
   ``scripts/`` :72-80): fx = fy = f, principal point (cu, cv), (q, t) = columns 5-8 and 9-11, COLMAP
   world-to-camera. The distorted set's file has two more columns (d1 d2 after sk) and is refused.
+
+Initial clouds (``points=``, ``POINT_SOURCES``; each expert's original takes its own)::
+
+    <root>/colmap_<k>/sparse/0/points3D.*  ``sparse``: the window's first frame's (Ex4DGS); ``frames``:
+                                           every frame's, each point at its frame's time (STG)
+    <root>/points3D_downsample.ply         ``mvs100k``: E-D3DGS's dense cloud of the window's first
+                                           frame, at most 100k points (its ``script/pre_technicolor.py``
+                                           and ``downsample_point.py``, run in the raw folder, write it)
+
+  All of them lie in the world of ``cameras_parameters.txt`` (each script triangulates with those poses
+  held), so either layout takes any of them.
 
 Conventions chosen (``specs/official_moegs.md`` 8, ``specs/experts_noncanonical.md`` 1.4, 2.4):
 - 50-frame windows, half-open in the file numbering: Birthday and Train (151, 201), Fabien and
@@ -45,7 +54,7 @@ import torch
 from torch import Tensor
 
 from moegs.camera import Camera, intrinsics
-from moegs.data._init_points import colmap_points, shared_volume_points
+from moegs.data._init_points import colmap_points, ply_points, shared_volume_points
 from moegs.data._io import (
     colmap_w2c,
     image_size,
@@ -65,8 +74,28 @@ WINDOWS = {
     "painter": (100, 150),
 }
 TEST_CAMERA = 10
+MVS100K = "points3D_downsample.ply"
 _TRAILING_INT = re.compile(r"(\d+)$")
 _RAW = re.compile(r"^(?P<scene>.+)_undist_(?P<frame>\d+)_(?P<cam>\d+)$")
+
+POINT_SOURCES = ("auto", "mvs100k", "sparse", "frames")
+"""``load_technicolor(points=...)``, named as ``moegs.data.n3v.POINT_SOURCES``:
+
+- ``auto``: the COLMAP points ``points_frames`` chooses (the first frame's by default), else
+  ``points3D_downsample.ply``, else random points in the cameras' shared view (``num_points``).
+- ``mvs100k``: E-D3DGS's dense cloud ``<root>/points3D_downsample.ply`` (E-D3DGS
+  ``scene/dataset_readers.py:352-355`` reads it and ``scene/__init__.py:59`` opens it: a missing file
+  stops its training). Its preprocessing triangulates the window's first frame only
+  (``script/pre_technicolor.py:160-169`` copies frame ``offsetlist[0]`` into ``colmap/input``, ``:257-259``
+  build the database and run ``script/thirdparty/helper3dg.py:192-252``: ``point_triangulator`` with the
+  given poses, ``patch_match_stereo``, ``stereo_fusion`` into ``colmap/dense/workspace/fused.ply``), and
+  ``script/downsample_point.py:7-11`` voxel-downsamples that to at most 100k points (README.md:59-61).
+- ``sparse``: the window's first frame's COLMAP points (Ex4DGS ``scene/dataset_readers.py:445, 492-501``:
+  ``colmap_<start_timestamp>/sparse/0``).
+- ``frames``: every frame's COLMAP points of the window, frame ``j``'s at time ``(j - start) / n`` (STG
+  ``thirdparty/gaussian_splatting/scene/dataset_readers.py:913-932``).
+
+A named source that is missing or holds no point is an error naming the file or folder expected."""
 
 
 def quat_to_rotmat(q: Tensor) -> Tensor:
@@ -205,11 +234,12 @@ def load_technicolor(
     resolution_scale: float = 1.0,
     frames: tuple[int, int] | None = None,
     test_cameras: tuple[int, ...] = (TEST_CAMERA,),
-    points_frames: str = "first",
+    points_frames: str | None = None,
     num_points: int = 100_000,
     seed: int = 0,
     resample: str = "bicubic",
     name: str | None = None,
+    points: str = "auto",
 ) -> Scene:
     """Load a Technicolor scene (``colmap`` or ``raw`` layout, see the module docstring).
 
@@ -217,23 +247,35 @@ def load_technicolor(
         frames: half-open window in the dataset's frame numbering; default the protocol's window
             for the five benchmark scenes, else every frame found.
         test_cameras: held-out camera numbers (10).
-        points_frames: ``"first"`` (Ex4DGS: the window's first frame) or ``"all"`` (STG: every frame,
-            each point tagged with its time).
-        num_points: fallback random points for the raw layout (no COLMAP points there).
+        points_frames: with ``points="auto"``, which frames' COLMAP points: ``"first"`` (None, the
+            default: the window's first frame) or ``"all"`` (every frame, each point tagged with its
+            time); the clouds ``points="sparse"`` and ``points="frames"`` name.
+        num_points: random points when ``points="auto"`` finds no cloud (0: none).
+        points: which initial cloud (``POINT_SOURCES``; each expert's original takes its own).
     """
     root = Path(root)
+    if points not in POINT_SOURCES:
+        raise ValueError(f"Technicolor points: expected one of {', '.join(POINT_SOURCES)}, got {points!r}")
+    if points_frames not in (None, "first", "all"):
+        raise ValueError(f"points_frames must be 'first' or 'all', got {points_frames!r}")
+    if points_frames is not None and points != "auto":
+        raise ValueError(
+            f"Technicolor: points_frames={points_frames!r} chooses the COLMAP points of points='auto' "
+            f"only; points={points!r} names its cloud itself"
+        )
     if not root.is_dir():
         raise FileNotFoundError(f"Technicolor scene: expected folder {root}")
     layout = detect_layout(root)
     window = _default_window(root, layout, frames)
     n = window[1] - window[0]
     bg = torch.zeros(3)
-    points: PointCloud | None = None
+    folders: list[Path] | None = None
     meta: dict = {
         "layout": layout,
         "frames": list(window),
         "time": "(frame - start) / (stop - start)",
         "test_cameras": list(test_cameras),
+        "points": points,
     }
 
     if layout == "colmap":
@@ -244,7 +286,6 @@ def load_technicolor(
         for folder in folders:
             img_dir = _image_dir(folder)
             images.append({camera_number(p.name): p for p in img_dir.glob("*.png")})
-        points = _colmap_window_points(folders, window, points_frames)
     else:
         raw = _raw_frames(root)
         probe = next(iter(raw.values()))
@@ -256,7 +297,7 @@ def load_technicolor(
         time = normalised_time(frame, window[0], window[1], window[1], "local")
         for cid in sorted(base):
             if cid not in images[k]:
-                where = folders[k] if layout == "colmap" else root
+                where = folders[k] if folders is not None else root
                 raise FileNotFoundError(
                     f"Technicolor: expected an image of camera {cid} for frame {frame} in {where}"
                 )
@@ -274,10 +315,13 @@ def load_technicolor(
     if not test:
         raise ValueError(f"Technicolor: test cameras {test_cameras} not among cameras {sorted(base)}")
     train_cams = [base[c] for c in sorted(base) if c not in test_cameras]
-    if points is None and num_points > 0:
-        points = shared_volume_points(
-            train_cams, num_points, 0.5, 10.0, seed, "raw layout has no COLMAP points"
-        )
+    if points == "auto":
+        cloud = _auto_points(root, folders, window, points_frames or "first")
+        if cloud is None and num_points > 0:
+            why = f"no COLMAP points or {MVS100K} in the scene folder"
+            cloud = shared_volume_points(train_cams, num_points, 0.5, 10.0, seed, why)
+    else:
+        cloud = _named_points(root, points, folders, window)
     return loaded_scene(
         "technicolor",
         root.name.lower(),
@@ -285,12 +329,42 @@ def load_technicolor(
         train,
         test,
         cameras=train_cams,
-        points=points,
+        points=cloud,
         num_frames=n,
         background=bg,
         multiview=True,
         meta=meta,
     )
+
+
+def _auto_points(
+    root: Path, folders: list[Path] | None, window: tuple[int, int], points_frames: str
+) -> PointCloud | None:
+    """``points="auto"``: the COLMAP points ``points_frames`` chooses, else E-D3DGS's cloud, else None."""
+    cloud = _colmap_window_points(folders, window, points_frames) if folders is not None else None
+    if cloud is None and (root / MVS100K).is_file():
+        cloud = ply_points(root / MVS100K)
+    return cloud
+
+
+def _named_points(
+    root: Path, points: str, folders: list[Path] | None, window: tuple[int, int]
+) -> PointCloud:
+    """The cloud ``points`` names (``POINT_SOURCES`` but ``auto``), or an error naming what is missing."""
+    what = f"Technicolor points={points!r}"
+    if points == "mvs100k":
+        return ply_points(require_file(root / MVS100K, what))
+    if folders is None:
+        raise FileNotFoundError(
+            f"{what}: expected COLMAP points in {root}/colmap_<frame>/sparse/0 (STG/Ex4DGS preprocessing); "
+            "the raw layout has none"
+        )
+    chosen = folders[:1] if points == "sparse" else folders
+    cloud = _colmap_window_points(folders, window, "first" if points == "sparse" else "all")
+    if cloud is None:
+        where = ", ".join(str(f / "sparse" / "0") for f in chosen[:2]) + (", ..." if len(chosen) > 2 else "")
+        raise ValueError(f"{what}: expected 3D points in the COLMAP model of {where}; found none")
+    return cloud
 
 
 def _colmap_window_points(

@@ -108,3 +108,63 @@ def test_errors(tmp_path):
     shutil.rmtree(tmp_path / "colmap_0" / "sparse")
     with pytest.raises(FileNotFoundError, match=r"colmap_0/sparse/0/images\.bin or images\.txt"):
         load_technicolor(tmp_path, frames=(0, 2))
+
+
+def test_each_experts_initial_cloud_by_name(tmp_path):
+    """``points=`` as in load_n3v: ``mvs100k`` E-D3DGS's ``<root>/points3D_downsample.ply``
+    (``scene/dataset_readers.py:352``), ``sparse`` the window's first frame's COLMAP points (Ex4DGS
+    ``scene/dataset_readers.py:492-501``), ``frames`` every frame's, each at its frame's time (STG
+    ``dataset_readers.py:913-932``); ``auto`` the COLMAP points first, then the PLY. A named cloud that is
+    missing or empty is an error naming where it was expected."""
+    from moegs.data.synthetic.writers import write_ply
+
+    fx.write_technicolor_colmap(tmp_path, frames=(5, 8))  # colmap_0..2, two points at z = 3 + k, 4 + k
+    with pytest.raises(FileNotFoundError, match=r"points='mvs100k'.*points3D_downsample\.ply"):
+        load_technicolor(tmp_path, frames=(5, 8), points="mvs100k")
+    dense = torch.tensor([[0.0, 0.0, 5.0 + i] for i in range(7)])
+    write_ply(tmp_path / "points3D_downsample.ply", dense, torch.full((7, 3), 0.5))
+    mvs = load_technicolor(tmp_path, frames=(5, 8), points="mvs100k")
+    assert mvs.meta["points"] == "mvs100k" and mvs.points.times is None
+    torch.testing.assert_close(mvs.points.xyz, dense)
+    sparse = load_technicolor(tmp_path, frames=(5, 8), points="sparse").points
+    assert sparse.times is None and sorted(sparse.xyz[:, 2].tolist()) == pytest.approx([3.0, 4.0])
+    frames = load_technicolor(tmp_path, frames=(5, 8), points="frames").points
+    assert sorted(frames.xyz[:, 2].tolist()) == pytest.approx([3.0, 4, 4, 5, 5, 6])
+    torch.testing.assert_close(frames.times, torch.tensor([0.0, 0, 1 / 3, 1 / 3, 2 / 3, 2 / 3]))
+    # auto keeps its former meaning (points_frames over the COLMAP points) before the dense cloud
+    assert len(load_technicolor(tmp_path, frames=(5, 8)).points) == 2
+    assert len(load_technicolor(tmp_path, frames=(5, 8), points_frames="all").points) == 6
+    with pytest.raises(ValueError, match="points_frames='all' chooses the COLMAP points of points='auto'"):
+        load_technicolor(tmp_path, frames=(5, 8), points="sparse", points_frames="all")
+    with pytest.raises(ValueError, match="Technicolor points: expected one of auto, mvs100k, sparse, frames"):
+        load_technicolor(tmp_path, frames=(5, 8), points="dense")
+    # the first frame triangulated nothing: 'sparse' refuses it, 'frames' merges the others, 'auto' falls
+    # back to the dense cloud
+    (tmp_path / "colmap_0" / "sparse" / "0" / "points3D.txt").write_text("")
+    empty = r"points='sparse': expected 3D points .*colmap_0/sparse/0; found none"
+    with pytest.raises(ValueError, match=empty):
+        load_technicolor(tmp_path, frames=(5, 8), points="sparse")
+    later = load_technicolor(tmp_path, frames=(5, 8), points="frames").points
+    torch.testing.assert_close(later.times, torch.tensor([1 / 3, 1 / 3, 2 / 3, 2 / 3]))
+    assert len(load_technicolor(tmp_path, frames=(5, 8)).points) == 7
+
+
+def test_raw_layout_takes_the_dense_cloud_and_refuses_colmap_points(tmp_path):
+    """E-D3DGS's preprocessing runs in the distributed folder and leaves its cloud there
+    (``script/pre_technicolor.py:160-169``, README.md:59-61): the raw layout reads it by name or as
+    ``auto``'s choice before random points; it has no per-frame COLMAP points to name."""
+    from moegs.data.synthetic.writers import write_ply
+
+    root = tmp_path / "Birthday"
+    fx.write_technicolor_raw(root, frames=(151, 153))
+    for points in ("sparse", "frames"):
+        expected = rf"points='{points}': expected COLMAP points in .*colmap_<frame>/sparse/0"
+        with pytest.raises(FileNotFoundError, match=expected):
+            load_technicolor(root, frames=(151, 153), points=points)
+    with pytest.raises(FileNotFoundError, match=r"points='mvs100k'.*Birthday/points3D_downsample\.ply"):
+        load_technicolor(root, frames=(151, 153), points="mvs100k")
+    assert "fallback" in load_technicolor(root, frames=(151, 153), num_points=50).points.source
+    write_ply(root / "points3D_downsample.ply", torch.rand(9, 3), torch.rand(9, 3))
+    assert len(load_technicolor(root, frames=(151, 153), points="mvs100k").points) == 9
+    auto = load_technicolor(root, frames=(151, 153), num_points=50).points
+    assert len(auto) == 9 and auto.source.startswith("points3D_downsample.ply")
