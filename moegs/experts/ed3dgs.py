@@ -354,6 +354,9 @@ class ED3DGSConfig(ExpertConfig):
             "points": "mvs100k",  # scene/dataset_readers.py:293 points3D_downsample.ply (README.md:59-61)
         },
         "n3v:coffee_martini": {"exclude": ("cam13",)},  # README.md:43: remove cam13.mp4 and its pose
+        # scene/dataset_readers.py:352 the same file name: the window's first frame's dense cloud
+        # (script/pre_technicolor.py:160-169, :259; downsample_point.py:7-11 at most 100k points)
+        "technicolor": {"points": "mvs100k"},
     }
     SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
         # arguments/dynerf/flame_steak.py:4-5

@@ -279,7 +279,8 @@ class Ex4DGSConfig(ExpertConfig):
             "resample": "bilinear",  # utils/general_utils.py:23 PILtoTorch(..., resample=2): bilinear
             "points": "sparse",  # scene/dataset_readers.py:558-566 colmap_<start>/sparse/0 of the start frame
         },
-        "technicolor": {"points_frames": "first"},  # scene/dataset_readers.py:492-501 the start frame's
+        # scene/dataset_readers.py:445, 492-501: colmap_<start_timestamp>/sparse/0, the start frame's points
+        "technicolor": {"points": "sparse"},
     }
     SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
         # configs/techni/<Scene>.json: densification_interval, densify_until, extract_from_iter, lrs,

@@ -37,6 +37,7 @@ import torch
 from torch import Tensor, nn
 
 from moegs.camera import Camera
+from moegs.data.points import knn_mean_distance
 from moegs.data.scene import PointCloud, Scene, View
 from moegs.experts import stg_guided
 from moegs.experts.base import (
@@ -122,6 +123,11 @@ class STGConfig(ExpertConfig):
     model for the whole scene. ``moegs.train.entry.train_recipe`` trains a longer scene in segments."""
     max_init_points: int | None = None
     """Keep at most this many initial points (random subset); None keeps all (STG: every frame's SfM)."""
+    thin_later_frames: bool = False
+    """Keep every point of the cloud's first time and, of each later time's points, the quarter farthest
+    from their nearest neighbour (:func:`keep_isolated_later_points`), before ``max_init_points``: STG's
+    ``"preprocesspoints": 3`` (``configs/techni_full/{Birthday,Theater,Train}.json:6``; 0, nothing done, in
+    Fabien and Painter, in every ``techni_lite`` and ``n3d_full`` config)."""
     trbf_scale_init: float = 0.0
     """Initial log temporal scale ``sτ`` (``-trbfslinit``: 0 on N3V, -2 on Technicolor)."""
     spatial_lr_scale: float | None = None
@@ -174,7 +180,7 @@ class STGConfig(ExpertConfig):
         # every frame's COLMAP points of the window, each at its time (dataset_readers.py:816-836, N3V;
         # :913-932, Technicolor)
         "n3v": {"points": "frames"},
-        "technicolor": {"points_frames": "all"},
+        "technicolor": {"points": "frames"},
     }
     SCENE_OVERRIDES: ClassVar[dict[str, dict[str, Any]]] = {
         # densify mode 2 (configs/n3d_full/<scene>.json:4-7; helper_train.py:233-256): opacity pruning up to
@@ -190,6 +196,9 @@ class STGConfig(ExpertConfig):
             }
             for name, steps in (("coffee_martini", 10_000), ("flame_salmon", 12_000))
         },
+        # "preprocesspoints": 3 (configs/techni_full/<Scene>.json:6; train.py:60 hands it to the model,
+        # scene/oursfull.py:155-156 thins in create_from_pcd); Fabien and Painter set 0
+        **{f"technicolor:{name}": {"thin_later_frames": True} for name in ("birthday", "theater", "train")},
     }
 
     @classmethod
@@ -463,6 +472,41 @@ def _point_times(points: PointCloud, window: tuple[float, float], seed: int) -> 
     return torch.rand(len(points), generator=g, device="cpu")
 
 
+def keep_isolated_later_points(points: PointCloud, share: float = 0.25) -> PointCloud:
+    """STG's ``"preprocesspoints": 3``: ``interpolate_point`` (``helper_model.py:126-178``, called from
+    ``scene/oursfull.py:155-156`` and ``ourslite.py:154-155`` with an ``N`` it overwrites at ``:160``).
+
+    The points are grouped by time, earliest first. The earliest group is kept whole. In every later
+    group of ``n`` points, each point's distance to its nearest other point of the group is compared with
+    the ``k``-th largest of those distances, ``k = floor(share * n)``, and the point is kept when its
+    distance is strictly larger (``:153-163``): ``k - 1`` points when the distances differ. With ``k = 0``
+    (fewer than 4 points) the index ``-0`` of the original's sorted distances is the smallest, so the group
+    keeps the points farther than the closest pair; a lone point is dropped (the original's 2-NN query has
+    no second neighbour there). The result lists the groups earliest first, each in its input order
+    (``:170-172``). A cloud without times is a single group: returned as it is.
+    """
+    if points.times is None or len(points) == 0:
+        return points
+    stamps, group = torch.unique(points.times, sorted=True, return_inverse=True)
+    kept = []
+    for g in range(len(stamps)):
+        index = (group == g).nonzero(as_tuple=True)[0]
+        if g > 0:
+            # squared distances order the points as the distances do
+            d2 = knn_mean_distance(points.xyz[index].double(), k=1, squared=True)
+            take = int(share * len(index))
+            threshold = d2.sort().values[len(index) - take if take else 0]
+            index = index[d2 > threshold]
+        kept.append(index)
+    keep = torch.cat(kept)
+    return PointCloud(
+        points.xyz[keep],
+        points.rgb[keep],
+        f"{points.source}, later times thinned to their {share:g} most isolated",
+        points.times[keep],
+    )
+
+
 class STGExpert(Expert):
     """One STG model of the scene's time window ``[start, stop)``, which it maps to STG's local time
     ``(t - start) / (stop - start)`` (``(j - start) / D`` for frame ``j``)."""
@@ -486,7 +530,10 @@ class STGExpert(Expert):
     @classmethod
     def from_scene(cls, scene: Scene, config: STGConfig) -> STGExpert:
         """A model of the whole ``scene`` (segments: ``moegs.train.segments.train_segments``)."""
-        points = thin_points(scene_points(scene), config.max_init_points, config.train.seed)
+        points = scene_points(scene)
+        if config.thin_later_frames:
+            points = keep_isolated_later_points(points)
+        points = thin_points(points, config.max_init_points, config.train.seed)
         window = segment_bounds(sorted({v.camera.time for v in scene.train}), None)[0]
         times = _point_times(points, window, config.train.seed)
         n = len(points)

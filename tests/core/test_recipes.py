@@ -181,6 +181,12 @@ ROWS = [
     ("stg", "technicolor:birthday", "strategy.max_densify_events", 12),  # configs/techni_full/Birthday.json:9
     ("stg", "technicolor:birthday", "decoder_activation", "clamp"),  # configs/techni_full/Birthday.json:11
     ("stg", "technicolor:birthday", "strategy.prune_z_below", None),  # helper_train.py:260-282 (mode 3)
+    ("stg", "technicolor:birthday", "thin_later_frames", True),  # configs/techni_full/Birthday.json:6 (3)
+    ("stg", "technicolor:theater", "thin_later_frames", True),  # configs/techni_full/Theater.json:6 (3)
+    ("stg", "technicolor:train", "thin_later_frames", True),  # configs/techni_full/Train.json:6 (3)
+    ("stg", "technicolor:fabien", "thin_later_frames", False),  # configs/techni_full/Fabien.json:6 (0)
+    ("stg", "technicolor:painter", "thin_later_frames", False),  # configs/techni_full/Painter.json:6 (0)
+    ("stg", "n3v:cook_spinach", "thin_later_frames", False),  # configs/n3d_full/cook_spinach.json:5 (0)
     # -- Ex4DGS (juno181/Ex4DGS) ------------------------------------------------------------------------
     ("ex4dgs", "n3v:cook_spinach", "train.iterations", 40_000),  # configs/N3V/n3v_base.json:15
     ("ex4dgs", "n3v:cook_spinach", "near", 4.0),  # configs/N3V/n3v_base.json:16
@@ -395,9 +401,13 @@ def test_recipes_carry_the_originals_loader_arguments():
         "points": "sparse",
     }
     assert config_for("stg", "n3v:sear_steak", "paper").loader_args == {"points": "frames"}
-    assert config_for("stg", "technicolor:birthday", "paper").loader_args == {"points_frames": "all"}
-    assert config_for("stg", "technicolor:birthday", "quick").loader_args == {"points_frames": "all"}
-    assert config_for("ex4dgs", "technicolor:birthday", "paper").loader_args == {"points_frames": "first"}
+    # Technicolor: load_technicolor(points=...) with the same names (E-D3DGS scene/dataset_readers.py:352;
+    # STG dataset_readers.py:913-932; Ex4DGS scene/dataset_readers.py:492-501)
+    assert config_for("stg", "technicolor:birthday", "paper").loader_args == {"points": "frames"}
+    assert config_for("ex4dgs", "technicolor:birthday", "paper").loader_args == {"points": "sparse"}
+    assert config_for("ed3dgs", "technicolor:birthday", "paper").loader_args == {"points": "mvs100k"}
+    for expert in ("stg", "ex4dgs", "ed3dgs"):
+        assert config_for(expert, "technicolor:birthday", "quick").loader_args == {"points": "auto"}
     assert config_for("ed3dgs", "synthetic:n3v_like", "quick").loader_args == {}
     recorded = coffee.provenance()["loader_args"]
     assert recorded == {"resample": "lanczos", "points": "mvs100k", "exclude": ["cam13"]}  # JSON: a list

@@ -16,6 +16,7 @@ from moegs.experts.stg import (
     STGExpert,
     STGSegments,
     STGStrategy,
+    keep_isolated_later_points,
     linear_rotation,
     polynomial_motion,
     segment_bounds,
@@ -140,6 +141,48 @@ def test_birth_times_come_from_the_point_cloud_in_local_time():
     with torch.no_grad():
         expert.splats["trbf_center"].fill_(2 / 3)
     assert torch.allclose(expert.frame(1.0).opacities, torch.sigmoid(expert.splats["opacities"]))  # Δt = 0
+
+
+def test_preprocesspoints_3_keeps_the_first_time_and_the_most_isolated_of_later_times():
+    """``interpolate_point`` (STG ``helper_model.py:126-178``): the earliest time whole; in a later time of
+    n points those whose nearest-neighbour distance exceeds the floor(n / 4)-th largest (strictly: k - 1
+    points), the smallest distance when floor(n / 4) = 0 (index -0), a lone point dropped; the groups
+    earliest first, each in input order."""
+
+    def on_x(xs, t):
+        return [[float(x), 0.0, 0.0] for x in xs], [t] * len(xs)
+
+    groups = [
+        on_x([0, 1, 5], 1.0),  # 3 points, k = 0: the threshold is the smallest distance (1) -> x = 5 only
+        on_x([0, 0.1, 0.2], 0.0),  # the earliest time: kept whole however close
+        on_x([10, 0, 21, 1, 6, 28, 3, 15], 0.5),  # 8 points, nn 4 1 6 1 3 7 2 5: k = 2, > 6 -> x = 28 only
+        on_x([7], 0.75),  # a lone point has no neighbour: dropped
+    ]
+    xyz = torch.tensor([p for g in groups for p in g[0]])
+    times = torch.tensor([t for g in groups for t in g[1]])
+    rgb = torch.arange(len(xyz), dtype=torch.float32)[:, None].expand(-1, 3) / 100  # follows each point
+    cloud = PointCloud(xyz, rgb, "per-frame", times)
+    thinned = keep_isolated_later_points(cloud)
+    torch.testing.assert_close(thinned.xyz[:, 0], torch.tensor([0.0, 0.1, 0.2, 28.0, 5.0]))
+    torch.testing.assert_close(thinned.times, torch.tensor([0.0, 0.0, 0.0, 0.5, 1.0]))
+    torch.testing.assert_close(thinned.rgb[:, 0], torch.tensor([3.0, 4, 5, 11, 2]) / 100)
+    untimed = PointCloud(xyz, rgb, "one frame")
+    assert keep_isolated_later_points(untimed) is untimed
+
+
+def test_the_technicolor_recipes_thin_later_frames_before_the_expert_starts():
+    """``"preprocesspoints": 3`` on Birthday, Theater and Train (configs/techni_full/<Scene>.json:6), applied
+    in ``create_from_pcd`` (scene/oursfull.py:155-156) to the cloud of the model's window."""
+    assert config_for("stg", "technicolor:train", "paper").config.thin_later_frames
+    assert not config_for("stg", "technicolor:painter", "paper").config.thin_later_frames
+    scene = with_times(tiny_scene(num_frames=3))
+    expected = keep_isolated_later_points(scene.points)
+    assert len(expected) < len(scene.points)
+    expert = STGExpert.from_scene(scene, STGConfig(thin_later_frames=True))
+    assert expert.num_gaussians == len(expected)
+    torch.testing.assert_close(expert.splats["means"].detach(), expected.xyz)
+    torch.testing.assert_close(expert.splats["trbf_center"].detach(), expected.times / 1.5)
+    assert STGExpert.from_scene(scene, STGConfig()).num_gaussians == len(scene.points)
 
 
 def test_two_views_of_one_timestamp_per_step():
