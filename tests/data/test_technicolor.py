@@ -163,8 +163,8 @@ def test_raw_layout_takes_the_dense_cloud_and_refuses_colmap_points(tmp_path):
             load_technicolor(root, frames=(151, 153), points=points)
     with pytest.raises(FileNotFoundError, match=r"points='mvs100k'.*Birthday/points3D_downsample\.ply"):
         load_technicolor(root, frames=(151, 153), points="mvs100k")
-    assert "fallback" in load_technicolor(root, frames=(151, 153), num_points=50).points.source
+    assert "fallback" in load_technicolor(root, frames=(151, 153), num_points=100).points.source
     write_ply(root / "points3D_downsample.ply", torch.rand(9, 3), torch.rand(9, 3))
     assert len(load_technicolor(root, frames=(151, 153), points="mvs100k").points) == 9
-    auto = load_technicolor(root, frames=(151, 153), num_points=50).points
+    auto = load_technicolor(root, frames=(151, 153), num_points=100).points
     assert len(auto) == 9 and auto.source.startswith("points3D_downsample.ply")
