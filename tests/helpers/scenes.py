@@ -89,3 +89,18 @@ def projection_scene(n: int = 300, seed: int = 1):
         K=intrinsics(50.0, 46.0, 27.0, 19.0), world_to_camera=w2c, width=60, height=40, near=0.5, far=8.0
     )
     return means, quats, scales, opacities, cam
+
+
+def untrained_experts(scene, names: tuple[str, ...] = ("static", "mcmc")) -> list:
+    """Each named expert built on ``scene`` from its quick preset, in eval mode, the ``i``-th with training
+    seed ``i`` (two different experts: copies of one would route by symmetry)."""
+    from dataclasses import replace
+
+    from moegs.experts import get_expert_class
+
+    out = []
+    for seed, name in enumerate(names):
+        cls = get_expert_class(name)
+        config = cls.config_class.from_preset("quick")
+        out.append(cls.from_scene(scene, replace(config, train=replace(config.train, seed=seed))).eval())
+    return out

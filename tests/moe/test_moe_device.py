@@ -13,7 +13,7 @@ from dataclasses import replace
 import pytest
 import torch
 from helpers.devices import HostReads, poisoned_default_device
-from helpers.scenes import tiny_scene
+from helpers.scenes import tiny_scene, untrained_experts
 
 import moegs.moe.train as router_training
 from moegs.data.scene import ImageCache
@@ -35,12 +35,7 @@ def scene():
 @pytest.fixture(scope="module")
 def experts(scene):
     """An untrained static 3DGS and an untrained 3DGS-MCMC (per-frame rows: ``frame_rows``)."""
-    out = []
-    for seed, name in enumerate(("static", "mcmc")):
-        cls = get_expert_class(name)
-        cfg = cls.config_class.from_preset("quick")
-        out.append(cls.from_scene(scene, replace(cfg, train=replace(cfg.train, seed=seed))).eval())
-    return out
+    return untrained_experts(scene)
 
 
 def config(variant: str = "vapr", **kw) -> RouterConfig:

@@ -9,9 +9,8 @@ from dataclasses import replace
 
 import pytest
 import torch
-from helpers.scenes import tiny_scene
+from helpers.scenes import tiny_scene, untrained_experts
 
-from moegs.experts import get_expert_class
 from moegs.moe import RouterConfig, load_moe, train_router
 from moegs.moe.model import MoEGS
 from moegs.moe.prune import WeightGradients
@@ -28,11 +27,7 @@ def scene():
 @pytest.fixture(scope="module")
 def trained(scene):
     """Two different experts (two copies of one would route by symmetry: every weight gradient zero)."""
-    out = []
-    for name in ("static", "mcmc"):
-        cls = get_expert_class(name)
-        out.append(cls.from_scene(scene, cls.config_class.from_preset("quick")).eval())
-    return out
+    return untrained_experts(scene)
 
 
 def fresh(trained):
