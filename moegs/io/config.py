@@ -126,8 +126,9 @@ def from_dict(cls: type, data: dict) -> Any:
 
 
 def tuples_for_lists(value: Any) -> Any:
-    """``value`` with every list, nested ones included, as a tuple: the form config fields hold the sequences
-    that JSON reads back as lists (e.g. inside a ``dict[str, Any]`` field, where ``from_dict`` sees no hint)."""
+    """``value`` with every list, nested ones included, as a tuple: the form config fields hold the
+    sequences JSON reads back as lists (e.g. inside a ``dict[str, Any]`` field, which ``from_dict`` takes
+    as it is)."""
     if isinstance(value, list | tuple):
         return tuple(tuples_for_lists(v) for v in value)
     if isinstance(value, dict):

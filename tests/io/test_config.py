@@ -13,7 +13,6 @@ from moegs.io.config import changed_fields, config_changes, with_fields
 from moegs.train.strategy import ADCStrategy, MCMCStrategy
 
 
-
 def _every_preset_of_every_expert() -> list:
     from moegs.experts import get_expert_class, list_experts
 
