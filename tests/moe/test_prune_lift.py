@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import pytest
 import torch
-from helpers.scenes import tiny_scene
+from helpers.scenes import tiny_scene, untrained_experts
 
 from moegs.experts import get_expert_class
 from moegs.moe import MoEGS, RouterConfig, compute_responsibilities, gate_importance, lift, prune
@@ -21,17 +21,8 @@ def scene():
     return tiny_scene(num_frames=2, cameras=3, size=24, num_points=100)
 
 
-def experts(scene, names=("static", "mcmc")):
-    out = []
-    for seed, name in enumerate(names):
-        cls = get_expert_class(name)
-        cfg = cls.config_class.from_preset("quick")
-        out.append(cls.from_scene(scene, replace(cfg, train=replace(cfg.train, seed=seed))).eval())
-    return out
-
-
 def model(scene, variant="vapr", names=("static", "mcmc")) -> MoEGS:
-    m = MoEGS(experts(scene, names), replace(RouterConfig.from_preset("quick"), variant=variant))
+    m = MoEGS(untrained_experts(scene, names), replace(RouterConfig.from_preset("quick"), variant=variant))
     torch.manual_seed(3)
     with torch.no_grad():
         for p in m.router.parameters():
@@ -179,7 +170,7 @@ def test_lift_gives_an_rgb_expert_the_dc_term_of_the_others_sh(scene):
     stg = get_expert_class("stg")
     cfg = stg.config_class.from_preset("quick")
     lite = stg.from_scene(scene, replace(cfg, color="lite")).eval()
-    static = experts(scene, ("static",))[0]
+    static = untrained_experts(scene, ("static",))[0]
     static.active_sh_degree = 2  # as after training: 9 SH coefficients
     m = MoEGS([static, lite], RouterConfig.from_preset("quick"))
     compute_responsibilities(m, scene.train[:2], scene.background)
